@@ -1,0 +1,41 @@
+"""mi_nest: 3D photoelastic stress tomography (NeST) inside Mitsuba 3.
+
+Importing the package selects ``llvm_ad_mono`` when no Mitsuba variant is set,
+registers the plugins (``stress`` medium, ``photoelastic`` integrator,
+``polariscope_light`` emitter, ``polariscope`` sensor) and registers them
+again after every variant change.
+"""
+import os
+
+__version__ = "0.1.0"
+
+# Dr.Jit 1.5 crashes on LLVM 15/16 and refuses 14: point it at LLVM 19 when the
+# system has it and the user has not chosen a library.
+_LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(_LLVM19):
+    os.environ["DRJIT_LIBLLVM_PATH"] = _LLVM19
+
+import mitsuba as mi  # noqa: E402
+
+DEFAULT_VARIANT = "llvm_ad_mono"
+
+
+def supported_variant(variant):
+    """Plugins need a JIT, monochromatic, unpolarised variant (the Jones algebra is ours)."""
+    return variant is not None and variant.endswith("_ad_mono")
+
+
+def _register_plugins(variant=None, *_):
+    if supported_variant(variant or mi.variant()):
+        from . import plugins
+        plugins.register()
+
+
+if mi.variant() is None:
+    mi.set_variant(DEFAULT_VARIANT)
+_register_plugins()
+mi.detail.add_variant_callback(_register_plugins)
+
+from .render import RenderResult, load_scene, render, scene_path  # noqa: E402
+
+__all__ = ["render", "load_scene", "scene_path", "RenderResult", "DEFAULT_VARIANT", "__version__"]

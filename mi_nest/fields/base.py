@@ -1,0 +1,65 @@
+"""The one small interface every stress source implements."""
+from __future__ import annotations
+
+import math
+
+
+class StressField:
+    """A 3D stress tensor field in MPa over scene coordinates in mm.
+
+    ``eval(p)`` takes a point as a 3-sequence of arrays (a Dr.Jit ``Point3f`` or a
+    tuple of NumPy arrays for analytic fields) and returns the 6-tuple
+    ``(xx, yy, zz, yz, zx, xy)``. Fields with optimisable data expose it through
+    ``traverse``/``parameters_changed`` like a Mitsuba object.
+    """
+
+    def eval(self, p):
+        raise NotImplementedError
+
+    def traverse(self, callback):
+        pass
+
+    def parameters_changed(self, keys):
+        pass
+
+
+class FieldParameterError(ValueError):
+    """A field or model parameter is missing, unknown or out of range."""
+
+
+def require_finite(name, *values):
+    for value in values:
+        if not math.isfinite(value):
+            raise FieldParameterError(f"parameter '{name}' must be finite, got {value!r}")
+
+
+def require_positive(name, value):
+    require_finite(name, value)
+    if value <= 0:
+        raise FieldParameterError(f"parameter '{name}' must be positive, got {value!r}")
+
+
+def unit_vector(name, vector):
+    if len(vector) != 3:
+        raise FieldParameterError(f"parameter '{name}' must have 3 components, got {vector!r}")
+    require_finite(name, *vector)
+    length = math.sqrt(sum(x * x for x in vector))
+    if length == 0:
+        raise FieldParameterError(f"parameter '{name}' must be a non-zero vector")
+    return tuple(x / length for x in vector)
+
+
+def orthonormal_frame(name_axis, axis, name_ref, reference):
+    """Right-handed ``(e1, e2, axis)`` with ``e1`` = ``reference`` made perpendicular to ``axis``."""
+    axis = unit_vector(name_axis, axis)
+    reference = unit_vector(name_ref, reference)
+    along = sum(r * a for r, a in zip(reference, axis))
+    e1 = tuple(r - along * a for r, a in zip(reference, axis))
+    length = math.sqrt(sum(x * x for x in e1))
+    if length < 1e-6:
+        raise FieldParameterError(f"parameter '{name_ref}' must not be parallel to '{name_axis}'")
+    e1 = tuple(x / length for x in e1)
+    e2 = (axis[1] * e1[2] - axis[2] * e1[1],
+          axis[2] * e1[0] - axis[0] * e1[2],
+          axis[0] * e1[1] - axis[1] * e1[0])
+    return e1, e2, axis

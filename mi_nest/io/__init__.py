@@ -1,0 +1,1 @@
+"""Files in and out: stress grids, multichannel EXR, PNG previews."""

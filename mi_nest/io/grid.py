@@ -1,0 +1,77 @@
+"""Stress grids on disk: ``.npz`` with ``stress`` (Z, Y, X, 6) in MPa, ``bbox_min``/``bbox_max`` in mm.
+
+Components follow 3D-TSV order (xx, yy, zz, yz, zx, xy). Samples sit on the grid
+nodes: node (0, 0, 0) at ``bbox_min``, the last node at ``bbox_max``.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class GridFileError(ValueError):
+    """A stress grid file is missing, unreadable or inconsistent."""
+
+
+@dataclass(frozen=True)
+class StressGrid:
+    stress: np.ndarray      # (Z, Y, X, 6) float32, MPa
+    bbox_min: np.ndarray    # (3,) mm
+    bbox_max: np.ndarray    # (3,) mm
+
+    def __post_init__(self):
+        validate_grid(self.stress, self.bbox_min, self.bbox_max, source="stress grid")
+
+
+def validate_grid(stress, bbox_min, bbox_max, source):
+    stress = np.asarray(stress)
+    if stress.ndim != 4 or stress.shape[-1] != 6:
+        raise GridFileError(f"{source}: array 'stress' must have shape (Z, Y, X, 6), got {stress.shape}")
+    if min(stress.shape[:3]) < 2:
+        raise GridFileError(f"{source}: the grid needs at least 2 nodes per axis, got {stress.shape[:3]}")
+    if not np.all(np.isfinite(stress)):
+        bad = np.argwhere(~np.isfinite(stress))[0]
+        raise GridFileError(f"{source}: 'stress' holds NaN or inf (first at index {tuple(int(i) for i in bad)})")
+    for name, box in (("bbox_min", bbox_min), ("bbox_max", bbox_max)):
+        box = np.asarray(box)
+        if box.shape != (3,) or not np.all(np.isfinite(box)):
+            raise GridFileError(f"{source}: '{name}' must be 3 finite numbers, got {box!r}")
+    if not np.all(np.asarray(bbox_max) > np.asarray(bbox_min)):
+        raise GridFileError(f"{source}: bbox_max {bbox_max} must exceed bbox_min {bbox_min} on every axis")
+
+
+def load_stress_grid(path) -> StressGrid:
+    path = Path(path)
+    if not path.is_file():
+        raise GridFileError(f"stress grid file not found: {path}")
+    try:
+        with np.load(path) as data:
+            missing = {"stress", "bbox_min", "bbox_max"} - set(data.files)
+            if missing:
+                raise GridFileError(f"{path}: missing array(s) {sorted(missing)}; "
+                                    "expected 'stress' (Z, Y, X, 6), 'bbox_min', 'bbox_max'")
+            stress, bbox_min, bbox_max = data["stress"], data["bbox_min"], data["bbox_max"]
+    except (OSError, ValueError, zipfile.BadZipFile) as error:
+        if isinstance(error, GridFileError):
+            raise
+        raise GridFileError(f"{path}: not a readable .npz stress grid ({error})") from error
+    validate_grid(stress, bbox_min, bbox_max, source=str(path))
+    return StressGrid(stress.astype(np.float32), bbox_min.astype(np.float64), bbox_max.astype(np.float64))
+
+
+def save_stress_grid(path, grid: StressGrid):
+    """Write atomically (temp file + rename) so a crash never leaves half a grid."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent or ".")
+    os.close(fd)
+    try:
+        np.savez_compressed(tmp, stress=grid.stress, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise

@@ -1,0 +1,56 @@
+"""Array-library dispatch so the physics runs unchanged on NumPy and Dr.Jit.
+
+The physics functions only need a handful of element-wise operations. They ask
+:func:`ops` for the namespace matching their inputs: Dr.Jit arrays (any
+variant) select Dr.Jit, everything else (NumPy arrays, Python floats) NumPy.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class _NumPyOps:
+    sqrt = staticmethod(np.sqrt)
+    sin = staticmethod(np.sin)
+    cos = staticmethod(np.cos)
+    atan2 = staticmethod(np.arctan2)
+    abs = staticmethod(np.abs)
+    maximum = staticmethod(np.maximum)
+    select = staticmethod(np.where)
+
+    @staticmethod
+    def sincos(x):
+        return np.sin(x), np.cos(x)
+
+    @staticmethod
+    def sign(x):
+        return np.where(x < 0, -1.0, 1.0)
+
+
+class _DrJitOps:
+    def __init__(self):
+        import drjit as dr
+        self.sqrt = dr.sqrt
+        self.sin = dr.sin
+        self.cos = dr.cos
+        self.atan2 = dr.atan2
+        self.abs = dr.abs
+        self.maximum = dr.maximum
+        self.select = dr.select
+        self.sincos = dr.sincos
+        self.sign = dr.sign
+
+
+_numpy_ops = _NumPyOps()
+_drjit_ops = None
+
+
+def ops(*values):
+    """Return the operation namespace for ``values`` (Dr.Jit if any is a Dr.Jit array)."""
+    global _drjit_ops
+    for value in values:
+        if type(value).__module__.startswith("drjit"):
+            if _drjit_ops is None:
+                _drjit_ops = _DrJitOps()
+            return _drjit_ops
+    return _numpy_ops

@@ -1,0 +1,107 @@
+"""Polariscope optics and the 16 multi-axis measurements (PHYSICS.md sections 1 and 6).
+
+Light source -> linear polariser (alpha_1) -> optional QWP (beta_1) -> specimen J
+-> optional QWP (beta_2) -> optional analyser (alpha_2). Angles are degrees in
+the transverse (u, v) plane, from u towards v.
+
+For a unit source the detected intensity is ``sum_rows |w^T J e|^2``. Writing J
+in its quaternion coordinates ``q = (a, b, c, d)`` makes every amplitude
+``w^T J e = kappa . q`` linear in q with a constant complex 4-vector kappa, so
+each intensity is ``(Re kappa . q)^2 + (Im kappa . q)^2`` summed over the rows:
+a handful of multiply-adds per ray for any polariscope.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+# J = a B_a + b B_b + c B_c + d B_d (see su2.py).
+_BASIS = np.array([
+    [[1, 0], [0, 1]],
+    [[0, 1j], [1j, 0]],
+    [[1j, 0], [0, -1j]],
+    [[0, 1], [-1, 0]],
+], dtype=np.complex128)
+
+
+def rotation(angle_deg):
+    """2D rotation by ``angle_deg`` from u towards v."""
+    t = np.deg2rad(angle_deg)
+    return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]], dtype=np.complex128)
+
+
+def linear_polarizer(alpha_deg):
+    """Jones matrix of a linear polariser transmitting ``(cos alpha, sin alpha)``."""
+    t = np.deg2rad(alpha_deg)
+    p = np.array([np.cos(t), np.sin(t)])
+    return np.outer(p, p).astype(np.complex128)
+
+
+def quarter_wave_plate(beta_deg):
+    """QWP with fast axis at ``beta``: ``R(beta) diag(1, i) R(-beta)``."""
+    return rotation(beta_deg) @ np.diag([1, 1j]) @ rotation(-beta_deg)
+
+
+@dataclass(frozen=True)
+class Polariscope:
+    """One polariscope configuration; ``None`` means the element is absent."""
+    polarizer: float = 90.0
+    input_qwp: Optional[float] = None
+    output_qwp: Optional[float] = None
+    analyzer: Optional[float] = None
+
+    def input_state(self):
+        t = np.deg2rad(self.polarizer)
+        e = np.array([np.cos(t), np.sin(t)], dtype=np.complex128)
+        return e if self.input_qwp is None else quarter_wave_plate(self.input_qwp) @ e
+
+    def output_rows(self):
+        """Rows ``w^T`` whose squared amplitudes add up to the detected intensity."""
+        rows = np.eye(2, dtype=np.complex128)
+        if self.output_qwp is not None:
+            rows = rows @ quarter_wave_plate(self.output_qwp)
+        if self.analyzer is not None:
+            t = np.deg2rad(self.analyzer)
+            rows = np.array([[np.cos(t), np.sin(t)]]) @ rows
+        return rows
+
+    def coefficients(self):
+        """Per output row, the real and imaginary parts of ``kappa`` as float tuples."""
+        e = self.input_state()
+        terms = []
+        for w in self.output_rows():
+            kappa = np.einsum("i,kij,j->k", w, _BASIS, e)
+            terms.append((tuple(float(x) for x in kappa.real), tuple(float(x) for x in kappa.imag)))
+        return tuple(terms)
+
+    def intensity(self, q):
+        """Detected intensity for the quaternion ``q`` (NumPy or Dr.Jit arrays)."""
+        total = 0.0
+        for re, im in self.coefficients():
+            amp_re = sum(k * x for k, x in zip(re, q) if k != 0.0)
+            amp_im = sum(k * x for k, x in zip(im, q) if k != 0.0)
+            total = total + amp_re * amp_re + amp_im * amp_im
+        return total
+
+    def matrix(self, J):
+        """Full system matrix for a Jones matrix ``J`` (NumPy; used by tests and calibration)."""
+        system = J @ (self.input_state()[:, None])
+        return self.output_rows() @ system
+
+
+def measurement_name(input_qwp, output_qwp, analyzer):
+    return f"pol.{input_qwp:g}.{output_qwp:g}.{analyzer:g}"
+
+
+# The 16 measurements of the paper's rig: beta_1 x beta_2 x alpha_2 with alpha_1 = 90.
+MEASUREMENTS = {
+    measurement_name(b1, b2, a2): Polariscope(90.0, float(b1), float(b2), float(a2))
+    for b1 in (45, 90) for b2 in (0, 45) for a2 in (0, 45, 90, 135)
+}
+
+
+def measurement_intensities(q):
+    """The 16 intensities ``{"pol.<b1>.<b2>.<a2>": I}`` of PHYSICS.md section 6."""
+    return {name: scope.intensity(q) for name, scope in MEASUREMENTS.items()}

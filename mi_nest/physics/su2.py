@@ -1,0 +1,139 @@
+"""Jones matrices of lossless media as unit quaternions (PHYSICS.md section 3).
+
+A quaternion is the tuple ``(a, b, c, d)`` of real arrays standing for the SU(2)
+matrix ``J = a I + i (b sigma_x + c sigma_z) + d (i sigma_y)``::
+
+    J = [[a + i c,  d + i b],
+         [-d + i b, a - i c]]
+
+acting on Jones vectors expressed in the transverse basis (u, v) of a ray.
+Every function works element-wise on NumPy or Dr.Jit arrays (see backend.py);
+``to_matrix``/``from_matrix`` are NumPy-only helpers for tests and tools.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .backend import ops
+
+# Below this phase the sinc series replaces sin(x)/x; it also keeps AD finite at x = 0.
+_SMALL_PHASE = 1e-4
+# Smallest squared phase carried through the square root (AD-safe at zero stress).
+_TINY = 1e-30
+
+
+def identity(like=0.0):
+    """The identity quaternion, broadcast to the type of ``like``."""
+    zero = like * 0.0
+    return (zero + 1.0, zero, zero, zero)
+
+
+def multiply(q1, q2):
+    """Quaternion product matching the matrix product ``J(q1) @ J(q2)``."""
+    a1, b1, c1, d1 = q1
+    a2, b2, c2, d2 = q2
+    return (a1 * a2 - b1 * b2 - c1 * c2 - d1 * d2,
+            a1 * b2 + b1 * a2 - d1 * c2 + c1 * d2,
+            a1 * c2 + c1 * a2 - b1 * d2 + d1 * b2,
+            a1 * d2 + d1 * a2 + b1 * c2 - c1 * b2)
+
+
+def conjugate(q):
+    """Inverse of a unit quaternion: the conjugate transpose of its Jones matrix."""
+    a, b, c, d = q
+    return (a, -b, -c, -d)
+
+
+def norm_squared(q):
+    a, b, c, d = q
+    return a * a + b * b + c * c + d * d
+
+
+def renormalize(q):
+    """One Newton step towards unit norm, ``q (3 - |q|^2) / 2``.
+
+    Cheap enough to apply after every step; it removes the float32 drift of
+    long products to first order without a square root.
+    """
+    scale = (3.0 - norm_squared(q)) * 0.5
+    return tuple(x * scale for x in q)
+
+
+def step(p, q, phase):
+    """Exact exponential of one constant-stress step.
+
+    Solves ``dE/ds = -i k [[p, q], [q, -p]] E`` over one step where ``phase = k h``
+    (``k = pi C / lambda``, ``h`` the step length), ``p = s_uu - s_vv`` and
+    ``q = 2 s_uv``. The result is a retarder of retardance
+    ``Delta = 2 phase sqrt(p^2 + q^2)`` with axis ``0.5 atan2(q, p)``.
+    """
+    xp = ops(p, q, phase)
+    x2 = (p * p + q * q) * (phase * phase)
+    x = xp.sqrt(xp.maximum(x2, _TINY))
+    small = x < _SMALL_PHASE
+    x_safe = xp.select(small, 1.0, x)
+    sinc = xp.select(small, 1.0 - x2 * (1.0 / 6.0), xp.sin(x_safe) / x_safe)
+    scale = -phase * sinc
+    zero = p * 0.0
+    return (xp.cos(x), q * scale, p * scale, zero)
+
+
+def retarder(delta, theta):
+    """Linear retarder of retardance ``delta`` with slow/fast axis at ``theta`` (radians)."""
+    xp = ops(delta, theta)
+    s, c = xp.sincos(0.5 * delta)
+    s2, c2 = xp.sincos(2.0 * theta)
+    return (c, -s * s2, -s * c2, delta * 0.0)
+
+
+def rotator(gamma):
+    """Rotator by ``gamma`` (radians): the rotation R(gamma) of PHYSICS.md section 1."""
+    xp = ops(gamma)
+    s, c = xp.sincos(gamma)
+    zero = gamma * 0.0
+    return (c, zero, zero, -s)
+
+
+def characteristic_parameters(q):
+    """Poincare equivalence: ``J = rotator(gamma) @ retarder(delta, theta)``.
+
+    Returns ``(delta, theta, gamma)`` in radians with ``delta`` in [0, 2 pi],
+    ``theta`` in [0, pi) and ``gamma`` in (-pi/2, pi/2]; the representative with
+    ``cos(gamma) >= 0`` keeps a single retarder's retardance unwrapped up to 2 pi.
+    """
+    a, b, c, d = q
+    xp = ops(a, b, c, d)
+    gamma0 = xp.atan2(-d, a)
+    flip = xp.abs(gamma0) > 0.5 * np.pi
+    gamma = xp.select(flip, gamma0 - np.pi * xp.sign(gamma0), gamma0)
+    cos_half = xp.sqrt(a * a + d * d)
+    cos_half = xp.select(flip, -cos_half, cos_half)
+    sin_half = xp.sqrt(b * b + c * c)
+    delta = 2.0 * xp.atan2(sin_half, cos_half)
+    sg, cg = xp.sincos(gamma)
+    b_ret = cg * b - sg * c
+    c_ret = sg * b + cg * c
+    theta = 0.5 * xp.atan2(-b_ret, -c_ret)
+    theta = xp.select(theta < 0.0, theta + np.pi, theta)
+    return delta, theta, gamma
+
+
+def to_matrix(q):
+    """Complex Jones matrices, shape ``(..., 2, 2)`` (NumPy)."""
+    a, b, c, d = (np.asarray(x, dtype=np.float64) for x in q)
+    J = np.empty(np.broadcast(a, b, c, d).shape + (2, 2), dtype=np.complex128)
+    J[..., 0, 0] = a + 1j * c
+    J[..., 0, 1] = d + 1j * b
+    J[..., 1, 0] = -d + 1j * b
+    J[..., 1, 1] = a - 1j * c
+    return J
+
+
+def from_matrix(J):
+    """Quaternion of SU(2) matrices ``(..., 2, 2)`` (NumPy); inverse of :func:`to_matrix`."""
+    J = np.asarray(J)
+    a = 0.5 * (J[..., 0, 0] + J[..., 1, 1]).real
+    c = 0.5 * (J[..., 0, 0] - J[..., 1, 1]).imag
+    b = 0.5 * (J[..., 0, 1] + J[..., 1, 0]).imag
+    d = 0.5 * (J[..., 0, 1] - J[..., 1, 0]).real
+    return a, b, c, d

@@ -1,0 +1,107 @@
+"""Render a photoelastic scene to named channels, in passes with a progress bar."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from . import __version__
+
+
+class SceneError(ValueError):
+    """A scene file cannot be found, parsed or rendered."""
+
+
+def scene_path(name: str) -> Path:
+    """Path of a shipped scene, by name (``"disk_compression"``) or file name."""
+    file_name = name if name.endswith(".xml") else f"{name}.xml"
+    path = Path(resources.files("mi_nest.scenes") / file_name)
+    if not path.is_file():
+        shipped = sorted(p.stem for p in Path(resources.files("mi_nest.scenes")).glob("*.xml"))
+        raise SceneError(f"no shipped scene '{name}'; available: {shipped}")
+    return path
+
+
+def load_scene(path, **defaults):
+    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults."""
+    path = Path(path)
+    if not path.exists() and len(path.parts) == 1:
+        path = scene_path(path.name)
+    if not path.is_file():
+        raise SceneError(f"scene file not found: {path}")
+    try:
+        return mi.load_file(str(path), **{k: str(v) for k, v in defaults.items()})
+    except Exception as error:
+        raise SceneError(f"{path}: {error}") from error
+
+
+@dataclass
+class RenderResult:
+    """Named ``(H, W)`` float32 channels; ``Y`` is the scene's own polariscope."""
+    channels: dict
+    seconds: float
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def main(self):
+        return self.channels["Y"]
+
+    def write_exr(self, path):
+        from .io.exr import write_channels
+        write_channels(path, self.channels, metadata=self.metadata)
+
+    def write_png(self, path, channel="Y"):
+        from .io.preview import write_preview
+        write_preview(path, self.channels[channel])
+
+
+def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult:
+    """Render ``scene`` (a loaded scene) and return its named channels.
+
+    The samples are split into ``passes`` kernel launches of equal size (default:
+    up to 16) so that ``progress=True`` can show a bar; every pass uses its own seed
+    and the passes are averaged, which is exact for box-filtered films.
+    """
+    sensor = scene.sensors()[0]
+    film = sensor.film()
+    spp = spp or sensor.sampler().sample_count()
+    if spp < 1:
+        raise SceneError(f"spp must be >= 1, got {spp}")
+    if passes is None:
+        passes = max(p for p in range(1, min(spp, 16) + 1) if spp % p == 0)
+    if spp % passes:
+        raise SceneError(f"spp={spp} cannot be split into {passes} equal passes")
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=passes, desc="render", unit="pass", leave=False)
+    start = time.perf_counter()
+    total = None
+    for index in range(passes):
+        image = mi.render(scene, spp=spp // passes, seed=seed * passes + index)
+        image = image.numpy()
+        total = image if total is None else total + image
+        if bar is not None:
+            bar.update()
+    if bar is not None:
+        bar.close()
+    dr.sync_thread()
+    seconds = time.perf_counter() - start
+    total /= passes
+    names = _channel_names(film, total.shape[-1])
+    channels = {name: np.ascontiguousarray(total[..., i], dtype=np.float32) for i, name in enumerate(names)}
+    metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
+                "mi_nest.integrator": scene.integrator().class_name()}
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata)
+
+
+def _channel_names(film, count):
+    names = [str(f.name) for f in film.bitmap().struct_()]
+    if len(names) != count:
+        raise SceneError(f"film produced {count} channels but names {names}")
+    return names

@@ -1,0 +1,204 @@
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
+
+JONES_CHANNELS = ("jones.a", "jones.b", "jones.c", "jones.d")
+CHARACTERISTIC_CHANNELS = ("char.delta", "char.theta", "char.gamma")
+CHANNELS = JONES_CHANNELS + CHARACTERISTIC_CHANNELS + tuple(MEASUREMENTS)
+
+
+class SceneSetupError(ValueError):
+    """The scene cannot be rendered photoelastically (no specimen, no polariscope...)."""
+
+
+class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
+    r"""
+    .. _integrator-photoelastic:
+
+    Photoelastic integrator (:monosp:`photoelastic`)
+    ------------------------------------------------
+
+    .. pluginparameters::
+
+     * - step_size
+       - |float|
+       - Longest march step in mm. Each chord through a specimen is split into
+         ``ceil(L / step_size)`` equal steps. (Default: 0.5)
+
+     * - jitter
+       - |bool|
+       - Sample each step at a uniformly random (stratified) point instead of
+         its midpoint. (Default: |false|)
+
+     * - max_crossings
+       - |int|
+       - Most surface crossings followed per ray; a guard against broken meshes.
+         (Default: 64)
+
+    Renders integrated photoelasticity (PHYSICS.md): for every camera ray it
+    follows the light from the ``polariscope_light`` panel to the camera through
+    every shape whose interior is a ``stress`` medium, entering and leaving as
+    often as the geometry requires (entry where the ray meets the outside of a
+    surface, exit at the next crossing), and multiplies the exact exponential
+    of each constant-stress step as an SU(2) quaternion, renormalised at every
+    step. Any other shape is opaque.
+
+    The film receives the intensity of the scene's polariscope as its main
+    channel (``Y``) and, as named channels, the Jones product
+    ``jones.a/b/c/d``, its characteristic parameters ``char.delta``,
+    ``char.theta``, ``char.gamma`` (radians) and the 16 normalised intensities
+    ``pol.<b1>.<b2>.<a2>`` of the multi-axis polariscope.
+
+    .. tabs::
+
+        .. code-tab:: xml
+
+            <integrator type="photoelastic">
+                <float name="step_size" value="0.25"/>
+            </integrator>
+    """
+
+    def __init__(self, props):
+        mi.CppADIntegrator.__init__(self, props)
+        self.step_size = float(props.get("step_size", 0.5))
+        if not (math.isfinite(self.step_size) and self.step_size > 0):
+            raise ValueError(f"photoelastic: 'step_size' must be a positive length in mm, "
+                             f"got {self.step_size}")
+        self.jitter = bool(props.get("jitter", False))
+        self.max_crossings = int(props.get("max_crossings", 64))
+        if self.max_crossings < 2:
+            raise ValueError(f"photoelastic: 'max_crossings' must be at least 2, got {self.max_crossings}")
+        self._setup = None
+
+    def aov_names(self):
+        return list(CHANNELS)
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        self._setup = _SceneSetup(scene, sensor)
+        try:
+            return super().render(scene, sensor, seed, spp, develop, evaluate)
+        finally:
+            self._setup = None
+
+    def render_forward(self, *args, **kwargs):
+        raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
+
+    render_backward = render_forward
+
+    def sample(self, mode, scene, sampler, ray, active, **kwargs):
+        if mode != dr.ADMode.Primal:
+            raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
+        setup = self._setup
+        q, blocked = self.trace(scene, sampler, ray, setup, active)
+        q = tuple(dr.select(blocked, 0.0, x) for x in q)
+        delta, theta, gamma = su2.characteristic_parameters(q)
+        radiance = setup.radiance
+        aovs = list(q) + [delta, theta, gamma]
+        aovs += [radiance * scope.intensity(q) for scope in MEASUREMENTS.values()]
+        main = radiance * setup.polariscope.intensity(q)
+        return mi.Spectrum(main), mi.Bool(True), aovs, None
+
+    @dr.syntax
+    def trace(self, scene, sampler, ray, setup, active):
+        """Jones quaternion of each ray, and whether an opaque shape blocks it."""
+        d = mi.Vector3f(ray.d)
+        u, v = setup.transverse_basis(d)
+        ray = mi.Ray3f(ray)
+        origin = mi.Point3f(ray.o)
+        q = su2.identity(mi.Float(0))
+        medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
+        blocked = mi.Bool(False)
+        crossings = mi.UInt32(0)
+        active = mi.Bool(active)
+
+        while active:
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
+            hit = si.is_valid()
+            # The chord between hit points, not the spawned ray's t (its origin is offset).
+            q = self.march(q, medium, origin, d, dr.norm(si.p - origin), u, v, sampler, setup,
+                           active & hit & (medium != 0))
+            hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
+                                   dr.reinterpret_array(mi.UInt32, si.shape), hit)
+            blocked |= hit & (hit_medium == 0)
+            entering = dr.dot(si.n, d) < 0
+            medium = dr.select(entering, hit_medium, 0)
+            origin = mi.Point3f(si.p)
+            ray = si.spawn_ray(d)
+            crossings += 1
+            active &= hit & ~blocked & (crossings < self.max_crossings)
+        return q, blocked
+
+    @dr.syntax
+    def march(self, q, medium, origin, d, chord, u, v, sampler, setup, active):
+        """Ordered product of step exponentials along ``origin + t d``, t in [0, chord].
+
+        Marching away from the camera means going against the light, so each new
+        step multiplies on the right.
+        """
+        steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self.step_size), 1), 0))
+        h = chord / mi.Float(dr.maximum(steps, 1))
+        i = mi.UInt32(0)
+        while i < steps:
+            offset = mi.Float(0.5)
+            if dr.hint(self.jitter, mode="scalar"):
+                offset = sampler.next_1d()
+            p = dr.fma(d, (mi.Float(i) + offset) * h, origin)
+            p_diff, q_diff = projection.project(setup.phase_tensor(medium, p), u, v)
+            q = su2.renormalize(su2.multiply(q, su2.step(p_diff, q_diff, h)))
+            i += 1
+        return q
+
+
+class _SceneSetup:
+    """What one render needs from the scene: specimen media, shape lookup, polariscope."""
+
+    def __init__(self, scene, sensor):
+        self.media = []
+        shape_media = {}
+        for shape in scene.shapes():
+            medium = shape.interior_medium()
+            if medium is not None and hasattr(medium, "phase_tensor"):
+                if medium not in self.media:
+                    self.media.append(medium)
+                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+                shape_media[shape_id] = self.media.index(medium) + 1
+        if not self.media:
+            raise SceneSetupError('photoelastic: the scene has no specimen: add a shape with '
+                                  '<medium type="stress" name="interior"> inside it')
+        table = np.zeros(max(shape_media) + 1, dtype=np.uint32)
+        for shape_id, index in shape_media.items():
+            table[shape_id] = index
+        self.medium_of_shape = mi.UInt32(table)
+
+        lights = [e for e in scene.emitters() if hasattr(e, "polarizer")]
+        if len(lights) != 1:
+            raise SceneSetupError(f"photoelastic: the scene needs exactly one "
+                                  f'<emitter type="polariscope_light">, found {len(lights)}')
+        light = lights[0]
+        self.radiance = light.radiance
+        self.polariscope = Polariscope(polarizer=light.polarizer, input_qwp=light.qwp,
+                                       output_qwp=getattr(sensor, "qwp", None),
+                                       analyzer=getattr(sensor, "analyzer", None))
+        to_world = sensor.world_transform()
+        self._right = dr.normalize(to_world @ mi.Vector3f(-1, 0, 0))
+
+    def transverse_basis(self, d):
+        """(u, v) per ray: image right/up made perpendicular to the light direction -d."""
+        u, v = projection.transverse_basis(-d, self._right)
+        return mi.Vector3f(u), mi.Vector3f(v)
+
+    def phase_tensor(self, medium, p):
+        if len(self.media) == 1:
+            return self.media[0].phase_tensor(p)
+        return dr.switch(medium - 1, [m.phase_tensor for m in self.media], p)
+
+
+mi.register_integrator("photoelastic", lambda props: PhotoelasticIntegrator(props))

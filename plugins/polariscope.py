@@ -1,0 +1,83 @@
+from __future__ import annotations
+
+import mitsuba as mi
+
+from .polariscope_light import _angle
+
+_PROJECTIONS = ("orthographic", "perspective")
+_OWN_PROPERTIES = ("projection", "analyzer", "qwp")
+
+
+class PolariscopeCamera(mi.Sensor):
+    r"""
+    .. _sensor-polariscope:
+
+    Polariscope camera (:monosp:`polariscope`)
+    ------------------------------------------
+
+    .. pluginparameters::
+
+     * - projection
+       - |string|
+       - ``orthographic`` (default) or ``perspective``; every other property
+         (``to_world``, ``fov``, ``near_clip``, film, sampler...) is passed to
+         Mitsuba's camera of that name, so both behave exactly like Mitsuba's.
+
+     * - analyzer
+       - |float|
+       - Transmission axis alpha_2 of the analyser LP2 in degrees in the
+         (u = image right, v = image up) plane; leave out for no analyser.
+         (Default: 0)
+
+     * - qwp
+       - |float|
+       - Fast axis beta_2 of the camera-side quarter-wave plate QWP2 in degrees;
+         leave out for a plane polariscope. (Default: none)
+
+    The camera half of the polariscope. With the ``polariscope_light`` emitter it
+    defines the main channel of the ``photoelastic`` integrator.
+
+    .. tabs::
+
+        .. code-tab:: xml
+
+            <sensor type="polariscope">
+                <string name="projection" value="orthographic"/>
+                <float name="qwp" value="135"/>
+                <float name="analyzer" value="0"/>
+                <transform name="to_world">
+                    <scale value="25"/>
+                    <lookat origin="0, 0, 100" target="0, 0, 0" up="0, 1, 0"/>
+                </transform>
+                <film type="hdrfilm"> ... </film>
+            </sensor>
+    """
+
+    def __init__(self, props):
+        super().__init__(props)
+        projection = props.get("projection", "orthographic")
+        if projection not in _PROJECTIONS:
+            raise ValueError(f"polariscope: unknown projection '{projection}'; choose one of {_PROJECTIONS}")
+        self.projection = projection
+        self.analyzer = _angle(props, "analyzer", 0.0)
+        self.qwp = _angle(props, "qwp", None)
+        camera = {key: props[key] for key in props.keys()
+                  if key not in _OWN_PROPERTIES and not isinstance(props[key], (mi.Film, mi.Sampler))}
+        camera.update(type=projection, film=self.film(), sampler=self.sampler())
+        self.camera = mi.load_dict(camera)
+
+    def sample_ray(self, time, sample1, sample2, sample3, active=True):
+        return self.camera.sample_ray(time, sample1, sample2, sample3, active)
+
+    def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+        return self.camera.sample_ray_differential(time, sample1, sample2, sample3, active)
+
+    def world_transform(self):
+        return self.camera.world_transform()
+
+    def to_string(self):
+        return (f"PolariscopeCamera[projection={self.projection}, qwp={self.qwp}, "
+                f"analyzer={self.analyzer}]")
+
+
+mi.register_sensor("polariscope", lambda props: PolariscopeCamera(props))

@@ -1,0 +1,151 @@
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import mitsuba as mi
+
+from mi_nest.fields import MODELS, FieldParameterError
+
+
+class StressMedium(mi.Medium):
+    r"""
+    .. _medium-stress:
+
+    Photoelastic stress medium (:monosp:`stress`)
+    ---------------------------------------------
+
+    .. pluginparameters::
+
+     * - stress_optic_coefficient
+       - |float|
+       - Stress-optic coefficient C in Brewster (1e-12 / Pa). Give this or
+         ``fringe_value``.
+
+     * - fringe_value
+       - |float|
+       - Material fringe value f_sigma = lambda / C in N/mm (MPa mm).
+
+     * - wavelength
+       - |float|
+       - Wavelength in nm. (Default: 532, the rig's bandpass filter)
+
+     * - filename
+       - |string|
+       - Stress grid ``.npz``: ``stress`` (Z, Y, X, 6) in MPa, 3D-TSV order
+         (xx, yy, zz, yz, zx, xy), ``bbox_min``/``bbox_max`` in mm; trilinear
+         lookup, differentiable through ``mi.traverse`` as ``stress``.
+
+     * - model
+       - |string|
+       - Closed-form field instead of a file: ``uniform``, ``twisted`` or
+         ``disk_compression``; its parameters (see ``mi_nest.fields.analytic``)
+         are given as further properties.
+
+    The interior of the enclosing (closed, outward-oriented) shape holds a
+    stress field in MPa; scene lengths are mm, so the retardance of a constant
+    step of length L is ``2 pi C L (sigma_1 - sigma_2) / lambda`` with no other
+    factor. Occupancy is the shape itself. Only the ``photoelastic`` integrator
+    reads this medium: it calls :py:meth:`phase_tensor` directly.
+
+    .. tabs::
+
+        .. code-tab:: xml
+
+            <shape type="ply">
+                <string name="filename" value="meshes/disk.ply"/>
+                <medium type="stress" name="interior">
+                    <float name="fringe_value" value="10.6"/>
+                    <string name="model" value="disk_compression"/>
+                    <float name="diameter" value="40"/>
+                    <float name="thickness" value="6"/>
+                    <float name="load" value="1000"/>
+                </medium>
+            </shape>
+    """
+
+    def __init__(self, props):
+        super().__init__(props)
+        self.wavelength = _positive(props, "wavelength", 532.0)
+        has_c, has_f = "stress_optic_coefficient" in props, "fringe_value" in props
+        if has_c == has_f:
+            raise ValueError("stress medium: give exactly one of 'stress_optic_coefficient' "
+                             "(Brewster) or 'fringe_value' (N/mm)")
+        if has_c:
+            self.stress_optic_coefficient = _positive(props, "stress_optic_coefficient", None)
+        else:
+            self.stress_optic_coefficient = self.wavelength / _positive(props, "fringe_value", None)
+        # rad per (MPa mm): Brewster * MPa * mm / nm = 1.
+        self.phase_rate = math.pi * self.stress_optic_coefficient / self.wavelength
+        self.field = _field_from_properties(props)
+
+    @property
+    def fringe_value(self):
+        return self.wavelength / self.stress_optic_coefficient
+
+    def stress(self, p):
+        """Stress tensor (MPa, 3D-TSV 6-tuple) at points ``p`` (mm)."""
+        return self.field.eval(p)
+
+    def phase_tensor(self, p):
+        """``pi C / lambda`` times the stress: phase per mm of the step generator."""
+        return tuple(self.phase_rate * s for s in self.field.eval(p))
+
+    def traverse(self, callback):
+        self.field.traverse(callback)
+
+    def parameters_changed(self, keys):
+        self.field.parameters_changed(keys)
+
+    def to_string(self):
+        return (f"StressMedium[C={self.stress_optic_coefficient:g} B, "
+                f"wavelength={self.wavelength:g} nm, field={self.field!r}]")
+
+
+def _positive(props, name, default):
+    if name not in props and default is not None:
+        return default
+    value = float(props[name])
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"stress medium: '{name}' must be a positive number, got {value}")
+    return value
+
+
+def _field_from_properties(props):
+    has_file, has_model = "filename" in props, "model" in props
+    if has_file == has_model:
+        raise ValueError("stress medium: give exactly one of 'filename' (a stress grid .npz) "
+                         f"or 'model' (one of {sorted(MODELS)})")
+    if has_file:
+        from mi_nest.fields.grid import GridField
+        from mi_nest.io.grid import load_stress_grid
+        return GridField(load_stress_grid(props["filename"]))
+    name = props["model"]
+    if name not in MODELS:
+        raise ValueError(f"stress medium: unknown model '{name}'; available: {sorted(MODELS)}")
+    model = MODELS[name]
+    kwargs = {}
+    for parameter in dataclasses.fields(model):
+        if parameter.init and parameter.name in props:
+            kwargs[parameter.name] = _parameter_value(name, parameter, props[parameter.name])
+    try:
+        return model(**kwargs)
+    except FieldParameterError as error:
+        raise ValueError(f"stress medium (model '{name}'): {error}") from None
+
+
+def _parameter_value(model, parameter, value):
+    if isinstance(parameter.default, tuple):
+        try:
+            return tuple(float(value[i]) for i in range(3))
+        except (TypeError, IndexError):
+            raise ValueError(f"stress medium (model '{model}'): '{parameter.name}' must be a "
+                             f"3-vector (<vector>/<point>), got {value!r}") from None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"stress medium (model '{model}'): '{parameter.name}' must be a number, "
+                         f"got {value!r}") from None
+
+
+mi.register_medium("stress", lambda props: StressMedium(props))

@@ -1,0 +1,1 @@
+"""Scenes shipped with mi_nest (package data); see ``mi_nest.scene_path``."""
