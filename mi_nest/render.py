@@ -37,7 +37,14 @@ def load_scene(path, **defaults):
     try:
         return mi.load_file(str(path), **{k: str(v) for k, v in defaults.items()})
     except Exception as error:
-        raise SceneError(f"{path}: {error}") from error
+        raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
+
+
+def _without_traceback(message):
+    """Mitsuba embeds a plugin's Python traceback in its error; keep location and cause."""
+    lines = [line for line in message.splitlines()
+             if not line.startswith(("Traceback (most recent call last)", "  File "))]
+    return " ".join(line.strip() for line in lines if line.strip())
 
 
 @dataclass

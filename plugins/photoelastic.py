@@ -131,7 +131,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             entering = dr.dot(si.n, d) < 0
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
-            ray = si.spawn_ray(d)
+            ray = mi.Ray3f(_past_surface(si, d), d)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
         return q, blocked
@@ -155,6 +155,18 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             q = su2.renormalize(su2.multiply(q, su2.step(p_diff, q_diff, h)))
             i += 1
         return q
+
+
+def _past_surface(si, d):
+    """Continue on the camera line, just past the surface.
+
+    ``si.spawn_ray`` offsets along the normal, which moves the continued ray off
+    the line by ~(1 + |p|) 1e-4 mm: on curved surfaces the exit point, and the
+    chord, would be wrong by about that much. Moving along ``d`` instead by the
+    same normal clearance (capped for grazing rays) keeps every hit on the line.
+    """
+    clearance = (1.0 + dr.max(dr.abs(si.p))) * mi.math.RayEpsilon
+    return dr.fma(d, clearance / dr.maximum(dr.abs(dr.dot(si.n, d)), 1e-2), si.p)
 
 
 class _SceneSetup:

@@ -1,0 +1,56 @@
+"""Scene dictionaries for tests: slabs, meshes and a configurable polariscope."""
+from __future__ import annotations
+
+import mitsuba as mi
+
+import mi_nest  # noqa: F401  (selects the variant, registers the plugins)
+
+WAVELENGTH = 532.0
+BREWSTER = 50.0
+
+
+def medium(model="uniform", C=BREWSTER, **params):
+    return {"type": "stress", "model": model, "stress_optic_coefficient": C, **params}
+
+
+def box(size, center=(0.0, 0.0, 0.0), interior=None):
+    """A closed box (Mitsuba's cube) of ``size`` (mm) centred at ``center``."""
+    shape = {"type": "cube",
+             "to_world": mi.ScalarTransform4f().translate(list(center)).scale([0.5 * s for s in size])}
+    if interior is not None:
+        shape["interior"] = interior
+    return shape
+
+
+def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, output_qwp=None,
+          analyzer=0.0, origin=(0.0, 0.0, 100.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0),
+          projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified"):
+    """A photoelastic scene; the default camera looks down -z (image right +x, up +y)."""
+    light = {"type": "polariscope_light", "polarizer": polarizer}
+    if input_qwp is not None:
+        light["qwp"] = input_qwp
+    to_world = mi.ScalarTransform4f().look_at(origin=list(origin), target=list(target), up=list(up))
+    if projection == "orthographic":
+        to_world = to_world @ mi.ScalarTransform4f().scale([view, view, 1.0])
+    sensor = {"type": "polariscope", "projection": projection, "to_world": to_world,
+              "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "luminance",
+                       "rfilter": {"type": "box"}},
+              "sampler": {"type": sampler, "sample_count": spp}}
+    if sampler == "stratified":
+        sensor["sampler"]["jitter"] = False
+    if projection == "perspective":
+        sensor["fov"] = fov
+    if analyzer is not None:
+        sensor["analyzer"] = analyzer
+    if output_qwp is not None:
+        sensor["qwp"] = output_qwp
+    description = {"type": "scene", "embree_use_robust_intersections": True,
+                   "integrator": {"type": "photoelastic", "step_size": step, "jitter": jitter},
+                   "light": light, "sensor": sensor}
+    for index, shape in enumerate(shapes):
+        description[f"specimen_{index}"] = shape
+    return mi.load_dict(description)
+
+
+def render(shapes, **options):
+    return mi_nest.render(scene(shapes, **options)).channels

@@ -1,0 +1,175 @@
+"""The pure math against NumPy/SciPy: exponentials, products, invariants, polariscope."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import mi_nest  # noqa: F401
+from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
+from mi_nest.physics.polariscope import linear_polarizer, quarter_wave_plate, rotation
+
+SIGMA_X = np.array([[0, 1], [1, 0]])
+SIGMA_Z = np.array([[1, 0], [0, -1]])
+rng = np.random.default_rng(7)
+
+
+def random_quaternions(n):
+    q = rng.normal(size=(4, n))
+    return tuple(q / np.linalg.norm(q, axis=0))
+
+
+def to_drjit(values):
+    return tuple(mi.Float(np.asarray(v, dtype=np.float32)) for v in values)
+
+
+def test_step_is_the_exact_exponential_of_the_generator():
+    p, q, phase = rng.normal(size=50) * 3, rng.normal(size=50) * 3, rng.uniform(0, 2, size=50)
+    J = su2.to_matrix(su2.step(p, q, phase))
+    for i in range(50):
+        expected = expm(-1j * phase[i] * (p[i] * SIGMA_Z + q[i] * SIGMA_X))
+        np.testing.assert_allclose(J[i], expected, atol=1e-12)
+
+
+def test_step_at_zero_and_tiny_stress_is_identity_to_first_order():
+    a, b, c, d = su2.step(np.array([0.0, 1e-7]), np.array([0.0, 0.0]), 1.0)
+    np.testing.assert_allclose(a, 1.0)
+    np.testing.assert_allclose(c, [0.0, -1e-7], rtol=1e-9)
+
+
+def test_quaternion_product_matches_matrix_product_and_conjugate_inverts():
+    q1, q2 = random_quaternions(20), random_quaternions(20)
+    product = su2.to_matrix(su2.multiply(q1, q2))
+    np.testing.assert_allclose(product, su2.to_matrix(q1) @ su2.to_matrix(q2), atol=1e-12)
+    identity = su2.to_matrix(su2.multiply(q1, su2.conjugate(q1)))
+    np.testing.assert_allclose(identity, np.broadcast_to(np.eye(2), identity.shape), atol=1e-12)
+    np.testing.assert_allclose(np.stack(su2.from_matrix(su2.to_matrix(q1))), np.stack(q1), atol=1e-12)
+
+
+def test_retarder_and_rotator_are_the_physics_conventions():
+    delta, theta, gamma = 1.1, 0.3, 0.7
+    expected = rotation(np.rad2deg(theta)) @ np.diag([np.exp(-0.5j * delta), np.exp(0.5j * delta)]) \
+        @ rotation(-np.rad2deg(theta))
+    np.testing.assert_allclose(su2.to_matrix(su2.retarder(delta, theta)), expected, atol=1e-12)
+    np.testing.assert_allclose(su2.to_matrix(su2.rotator(gamma)), rotation(np.rad2deg(gamma)), atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "drjit"])
+def test_characteristic_parameters_round_trip(backend):
+    n = 500
+    delta = rng.uniform(0.01, 2 * np.pi - 0.01, n)
+    theta = rng.uniform(0.01, np.pi - 0.01, n)
+    gamma = rng.uniform(-0.5 * np.pi + 0.01, 0.5 * np.pi - 0.01, n)
+    args = (delta, theta, gamma) if backend == "numpy" else to_drjit((delta, theta, gamma))
+    q = su2.multiply(su2.rotator(args[2]), su2.retarder(args[0], args[1]))
+    recovered = [np.asarray(x, dtype=np.float64) for x in su2.characteristic_parameters(q)]
+    tol = 1e-9 if backend == "numpy" else 2e-3
+    for got, want in zip(recovered, (delta, theta, gamma)):
+        np.testing.assert_allclose(got, want, atol=tol)
+
+
+def test_characteristic_invariants_of_long_products():
+    q = su2.identity(np.zeros(100))
+    for _ in range(30):
+        q = su2.multiply(q, su2.step(rng.normal(size=100), rng.normal(size=100), 0.3))
+    delta, theta, gamma = su2.characteristic_parameters(q)
+    a, b, c, d = q
+    np.testing.assert_allclose(np.cos(delta / 2) * np.cos(gamma), a, atol=1e-12)
+    np.testing.assert_allclose(np.sin(delta / 2) ** 2, b * b + c * c, atol=1e-12)
+    rebuilt = su2.multiply(su2.rotator(gamma), su2.retarder(delta, theta))
+    np.testing.assert_allclose(np.stack(rebuilt), np.stack(q), atol=1e-12)
+
+
+@dr.syntax
+def _long_product(p, q, phase, steps, renormalize):
+    result = su2.identity(mi.Float(0) * p)
+    i = mi.UInt32(0)
+    while i < steps:
+        result = su2.multiply(result, su2.step(p + 1e-3 * mi.Float(i), q, phase))
+        if dr.hint(renormalize, mode="scalar"):
+            result = su2.renormalize(result)
+        i += 1
+    return result
+
+
+def test_float32_products_of_ten_thousand_steps_stay_unitary():
+    p, q = mi.Float(rng.normal(size=256)), mi.Float(rng.normal(size=256))
+    drift = {}
+    for renormalize in (False, True):
+        result = _long_product(p, q, mi.Float(0.37), mi.UInt32(10_000), renormalize)
+        drift[renormalize] = float(dr.max(dr.abs(su2.norm_squared(result) - 1.0))[0])
+    assert drift[True] < 1e-6
+    # Without the correction float32 rounding accumulates; the renderer always renormalises.
+    assert drift[False] > drift[True]
+
+
+def test_drjit_and_numpy_agree_on_every_function():
+    p, q, phase = rng.normal(size=64), rng.normal(size=64), rng.uniform(0, 1, 64)
+    u, v = projection.transverse_basis(tuple(np.array([[0.0], [0.6], [0.8]]) + 0 * p),
+                                       tuple(np.array([[1.0], [0.0], [0.0]]) + 0 * p))
+    s6 = tuple(rng.normal(size=64) for _ in range(6))
+    numpy_results = {
+        "step": su2.step(p, q, phase),
+        "project": projection.project(s6, u, v),
+        "char": su2.characteristic_parameters(su2.multiply(su2.step(p, q, phase), su2.step(q, p, phase))),
+        "intensity": tuple(MEASUREMENTS.values())[5].intensity(su2.step(p, q, phase)),
+    }
+    P, Q, PH = to_drjit((p, q, phase))
+    U, V, S6 = to_drjit(u), to_drjit(v), to_drjit(s6)
+    drjit_results = {
+        "step": su2.step(P, Q, PH),
+        "project": projection.project(S6, U, V),
+        "char": su2.characteristic_parameters(su2.multiply(su2.step(P, Q, PH), su2.step(Q, P, PH))),
+        "intensity": tuple(MEASUREMENTS.values())[5].intensity(su2.step(P, Q, PH)),
+    }
+    for name, expected in numpy_results.items():
+        got = drjit_results[name]
+        np.testing.assert_allclose(np.array(got, dtype=np.float64), np.array(expected), atol=2e-5, err_msg=name)
+
+
+def test_projection_matches_explicit_matrix_products():
+    S = rng.normal(size=(3, 3))
+    S = S + S.T
+    k = np.array([0.3, -0.5, 0.8])
+    k /= np.linalg.norm(k)
+    u, v = projection.transverse_basis(tuple(k), (1.0, 0.0, 0.0))
+    u, v = np.array(u), np.array(v)
+    np.testing.assert_allclose(np.cross(u, v), k, atol=1e-12)
+    s6 = (S[0, 0], S[1, 1], S[2, 2], S[1, 2], S[2, 0], S[0, 1])
+    p, q = projection.project(s6, u, v)
+    assert p == pytest.approx(u @ S @ u - v @ S @ v)
+    assert q == pytest.approx(2 * u @ S @ v)
+    # Adding p I (the trace ambiguity) changes nothing.
+    p2, q2 = projection.project(tuple(x + (3.0 if i < 3 else 0.0) for i, x in enumerate(s6)), u, v)
+    assert (p2, q2) == pytest.approx((p, q))
+
+
+def test_polariscope_elements():
+    np.testing.assert_allclose(linear_polarizer(30) @ linear_polarizer(30), linear_polarizer(30), atol=1e-15)
+    # Two QWPs at the same angle are a half-wave plate: 90-degree light turns to 0 under a 45-degree HWP.
+    hwp = quarter_wave_plate(45) @ quarter_wave_plate(45)
+    np.testing.assert_allclose(np.abs(hwp @ np.array([0, 1])), [1, 0], atol=1e-15)
+
+
+def test_sixteen_intensities_match_direct_jones_calculus():
+    q = random_quaternions(50)
+    J = su2.to_matrix(q)
+    for name, scope in MEASUREMENTS.items():
+        expected = np.sum(np.abs(np.einsum("ij,njk,k->ni", scope.output_rows(), J, scope.input_state())) ** 2, axis=1)
+        direct = np.array([np.abs(linear_polarizer(scope.analyzer) @ quarter_wave_plate(scope.output_qwp) @ J[i]
+                                  @ quarter_wave_plate(scope.input_qwp) @ np.array([0, 1])) ** 2
+                           for i in range(50)]).sum(axis=1)
+        np.testing.assert_allclose(scope.intensity(q), expected, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(scope.intensity(q), direct, atol=1e-12, err_msg=name)
+    assert len(MEASUREMENTS) == 16 and "pol.45.0.135" in MEASUREMENTS
+
+
+def test_free_space_and_dark_field_closed_forms():
+    free = su2.identity(np.zeros(1))
+    assert Polariscope(90, None, None, 90).intensity(free) == pytest.approx(1.0)
+    assert Polariscope(90, None, None, 0).intensity(free) == pytest.approx(0.0)
+    assert Polariscope(90).intensity(free) == pytest.approx(1.0)   # no analyser: lossless
+    delta = rng.uniform(0, 4 * np.pi, 100)
+    q = su2.multiply(su2.rotator(rng.uniform(-1, 1, 100)), su2.retarder(delta, rng.uniform(0, 3, 100)))
+    dark_field = Polariscope(90, 45, 135, 0)
+    np.testing.assert_allclose(dark_field.intensity(q), np.sin(delta / 2) ** 2, atol=1e-12)
