@@ -5,15 +5,17 @@ registers the plugins (``stress`` medium, ``photoelastic`` integrator,
 ``polariscope_light`` emitter, ``polariscope`` sensor) and registers them
 again after every variant change.
 """
+import glob
 import os
 
 __version__ = "0.1.0"
 
 # Dr.Jit 1.5 crashes on LLVM 15/16 and refuses 14: point it at LLVM 19 when the
-# system has it and the user has not chosen a library.
-_LLVM19 = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
-if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(_LLVM19):
-    os.environ["DRJIT_LIBLLVM_PATH"] = _LLVM19
+# system has it (Debian's libllvm19) and the user has not chosen a library.
+if "DRJIT_LIBLLVM_PATH" not in os.environ:
+    _llvm19 = sorted(glob.glob("/usr/lib/*-linux-gnu/libLLVM-19.so"))
+    if _llvm19:
+        os.environ["DRJIT_LIBLLVM_PATH"] = _llvm19[0]
 
 import mitsuba as mi  # noqa: E402
 
@@ -25,17 +27,22 @@ def supported_variant(variant):
     return variant is not None and variant.endswith("_ad_mono")
 
 
-def _register_plugins(variant=None, *_):
-    if supported_variant(variant or mi.variant()):
+def _register_plugins():
+    if supported_variant(mi.variant()):
         from . import plugins
         plugins.register()
+
+
+def _on_variant_change(old_variant, new_variant):
+    _register_plugins()
 
 
 if mi.variant() is None:
     mi.set_variant(DEFAULT_VARIANT)
 _register_plugins()
-mi.detail.add_variant_callback(_register_plugins)
+mi.detail.add_variant_callback(_on_variant_change)
 
-from .render import RenderResult, load_scene, render, scene_path  # noqa: E402
+from .render import RenderResult, SceneError, load_scene, render, scene_path  # noqa: E402
 
-__all__ = ["render", "load_scene", "scene_path", "RenderResult", "DEFAULT_VARIANT", "__version__"]
+__all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "DEFAULT_VARIANT",
+           "__version__"]

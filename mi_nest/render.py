@@ -76,6 +76,11 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     """
     sensor = scene.sensors()[0]
     film = sensor.film()
+    integrator = scene.integrator()
+    if not hasattr(integrator, "check_scene"):
+        raise SceneError(f'the scene\'s integrator is {integrator.class_name()}; mi_nest renders with '
+                         '<integrator type="photoelastic">')
+    integrator.check_scene(scene, sensor)
     spp = spp or sensor.sampler().sample_count()
     if spp < 1:
         raise SceneError(f"spp must be >= 1, got {spp}")

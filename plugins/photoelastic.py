@@ -79,10 +79,20 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def aov_names(self):
         return list(CHANNELS)
 
+    def check_scene(self, scene, sensor=0):
+        """Raise :class:`SceneSetupError` naming what the scene lacks.
+
+        ``mi.render`` reports exceptions raised inside ``render`` only as a failed
+        custom operation, so callers that want the message check first.
+        """
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        return _SceneSetup(scene, sensor)
+
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        self._setup = _SceneSetup(scene, sensor)
+        self._setup = self.check_scene(scene, sensor)
         try:
             return super().render(scene, sensor, seed, spp, develop, evaluate)
         finally:

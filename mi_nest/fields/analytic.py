@@ -31,7 +31,8 @@ class UniformField(StressField):
     xy: float = 0.0
 
     def __post_init__(self):
-        require_finite("stress", self.xx, self.yy, self.zz, self.yz, self.zx, self.xy)
+        for name in ("xx", "yy", "zz", "yz", "zx", "xy"):
+            require_finite(name, getattr(self, name))
 
     def eval(self, p):
         zero = p[0] * 0.0
