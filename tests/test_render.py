@@ -10,7 +10,7 @@ import mi_nest
 from mi_nest.fields import DiskCompressionField
 from mi_nest.physics import MEASUREMENTS, Polariscope, su2
 from mi_nest.physics.polariscope import rotation
-from scenes import BREWSTER, WAVELENGTH, box, medium, render
+from scenes import BREWSTER, WAVELENGTH, box, medium, render, scene
 
 PHASE_RATE = math.pi * BREWSTER / WAVELENGTH   # rad per (MPa mm)
 
@@ -182,3 +182,30 @@ def test_shipped_scenes_render_fringes_at_16x16(name):
     assert result.main.shape == (16, 16)
     assert set(result.channels) == {"Y", *mi_nest.plugins.photoelastic.CHANNELS}
     assert np.all(np.isfinite(result.main)) and result.main.std() > 0.05
+
+
+def test_perspective_rays_use_their_own_transverse_basis():
+    """Each perspective ray sees the stress projected on its own (u, v): PHYSICS.md section 1."""
+    S = np.array([[1.5, 0.6, 0.9], [0.6, -0.8, -0.7], [0.9, -0.7, 0.3]])
+    thickness, res = 3.0, 5
+    origin = np.array([0.0, 0.0, 30.0])
+    scene_ = scene([box((200, 200, thickness), interior=medium(
+        xx=S[0, 0], yy=S[1, 1], zz=S[2, 2], yz=S[1, 2], zx=S[0, 2], xy=S[0, 1]))],
+        projection="perspective", fov=60.0, origin=tuple(origin), up=(0.3, 1.0, 0.0), res=res)
+    channels = mi_nest.render(scene_).channels
+    sensor = scene_.sensors()[0]
+    right = np.array(sensor.world_transform() @ mi.Vector3f(-1, 0, 0)).ravel()
+    right /= np.linalg.norm(right)
+    for row in range(res):
+        for col in range(res):
+            ray, _ = sensor.sample_ray(0.0, 0.0, mi.Point2f((col + 0.5) / res, (row + 0.5) / res), mi.Point2f(0.5))
+            k = -np.array(ray.d).ravel()
+            u = right - (right @ k) * k
+            u /= np.linalg.norm(u)
+            v = np.cross(k, u)
+            chord = thickness / abs(k[2])
+            expected = su2.step(u @ S @ u - v @ S @ v, 2 * u @ S @ v, PHASE_RATE * chord)
+            got = [channels[f"jones.{c}"][row, col] for c in "abcd"]
+            np.testing.assert_allclose(got, expected, atol=3e-5, err_msg=f"pixel {row},{col}")
+    # The basis really varies across the image: the corner and centre axes differ.
+    assert abs(channels["char.theta"][0, 0] - channels["char.theta"][2, 2]) > 0.01
