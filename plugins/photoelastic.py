@@ -120,7 +120,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def trace(self, scene, sampler, ray, setup, active):
         """Jones quaternion of each ray, and whether an opaque shape blocks it."""
         d = mi.Vector3f(ray.d)
-        u, v = setup.transverse_basis(d)
+        coefficients = setup.projection_coefficients(d)
         ray = mi.Ray3f(ray)
         origin = mi.Point3f(ray.o)
         q = su2.identity(mi.Float(0))
@@ -133,8 +133,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
             hit = si.is_valid()
             # The chord between hit points, not the spawned ray's t (its origin is offset).
-            q = self.march(q, medium, origin, d, dr.norm(si.p - origin), u, v, sampler, setup,
-                           active & hit & (medium != 0))
+            segment = self.march(medium, origin, d, dr.norm(si.p - origin), coefficients, sampler, setup,
+                                 active & hit & (medium != 0))
+            q = su2.multiply(q, segment)
             hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
                                    dr.reinterpret_array(mi.UInt32, si.shape), hit)
             blocked |= hit & (hit_medium == 0)
@@ -147,24 +148,41 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return q, blocked
 
     @dr.syntax
-    def march(self, q, medium, origin, d, chord, u, v, sampler, setup, active):
+    def march(self, medium, origin, d, chord, coefficients, sampler, setup, active):
         """Ordered product of step exponentials along ``origin + t d``, t in [0, chord].
 
-        Marching away from the camera means going against the light, so each new
-        step multiplies on the right.
+        Marching away from the camera goes against the light, so later steps
+        multiply on the right. The chord's front and back halves are two
+        independent products advanced in the same iteration (then joined, which
+        is exact): two dependency chains keep the vector units busy where a
+        single chain would leave them waiting on its latency.
         """
         steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self.step_size), 1), 0))
         h = chord / mi.Float(dr.maximum(steps, 1))
+        half = (steps + 1) // 2
+        front = su2.identity(mi.Float(0))
+        back = su2.identity(mi.Float(0))
         i = mi.UInt32(0)
-        while i < steps:
-            offset = mi.Float(0.5)
-            if dr.hint(self.jitter, mode="scalar"):
-                offset = sampler.next_1d()
-            p = dr.fma(d, (mi.Float(i) + offset) * h, origin)
-            p_diff, q_diff = projection.project(setup.phase_tensor(medium, p), u, v)
-            q = su2.renormalize(su2.multiply(q, su2.step(p_diff, q_diff, h)))
+        while i < half:
+            front = su2.multiply_renormalized(front, self.step(i, medium, origin, d, h, coefficients,
+                                                               sampler, setup))
+            j = i + half
+            back_step = _identity_unless(j < steps, self.step(j, medium, origin, d, h, coefficients,
+                                                              sampler, setup))
+            back = su2.multiply_renormalized(back, back_step)
             i += 1
-        return q
+        return su2.multiply(front, back)
+
+    def step(self, index, medium, origin, d, h, coefficients, sampler, setup):
+        """Exact exponential of step ``index`` of length ``h``, sampled at its midpoint or jittered."""
+        offset = sampler.next_1d() if self.jitter else mi.Float(0.5)
+        p = dr.fma(d, (mi.Float(index) + offset) * h, origin)
+        p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
+        return su2.step(p_diff, q_diff, h)
+
+
+def _identity_unless(keep, q):
+    return (dr.select(keep, q[0], 1.0),) + tuple(dr.select(keep, x, 0.0) for x in q[1:])
 
 
 def _past_surface(si, d):
@@ -212,14 +230,23 @@ class _SceneSetup:
         to_world = sensor.world_transform()
         self._right = dr.normalize(to_world @ mi.Vector3f(-1, 0, 0))
 
-    def transverse_basis(self, d):
-        """(u, v) per ray: image right/up made perpendicular to the light direction -d."""
-        u, v = projection.transverse_basis(-d, self._right)
-        return mi.Vector3f(u), mi.Vector3f(v)
+    def projection_coefficients(self, d):
+        """Per ray, what turns :meth:`phase_tensor` into the step generator ``(p, q)``.
+
+        The basis (u, v) is image right/up made perpendicular to the light
+        direction -d. With a single medium its phase rate is folded in here,
+        once per ray, instead of scaling six components at every step.
+        """
+        alpha, beta = projection.projection_coefficients(*projection.transverse_basis(-d, self._right))
+        if len(self.media) == 1:
+            rate = self.media[0].phase_rate
+            alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
+        return alpha, beta
 
     def phase_tensor(self, medium, p):
+        """Stress at ``p`` of each ray's medium; scaled by its phase rate unless folded in above."""
         if len(self.media) == 1:
-            return self.media[0].phase_tensor(p)
+            return self.media[0].stress(p)
         return dr.switch(medium - 1, [m.phase_tensor for m in self.media], p)
 
 

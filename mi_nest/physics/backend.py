@@ -23,6 +23,10 @@ class _NumPyOps:
         return np.sin(x), np.cos(x)
 
     @staticmethod
+    def rsqrt(x):
+        return 1.0 / np.sqrt(x)
+
+    @staticmethod
     def sign(x):
         return np.where(x < 0, -1.0, 1.0)
 
@@ -38,6 +42,7 @@ class _DrJitOps:
         self.maximum = dr.maximum
         self.select = dr.select
         self.sincos = dr.sincos
+        self.rsqrt = dr.rsqrt
         self.sign = dr.sign
 
 

@@ -38,17 +38,30 @@ def transverse_basis(k, right):
     return u, v
 
 
-def bilinear(s6, a, b):
-    """``a^T S b`` for a symmetric tensor ``S`` given as a 6-tuple."""
-    xx, yy, zz, yz, zx, xy = s6
-    return (a[0] * (xx * b[0] + xy * b[1] + zx * b[2])
-            + a[1] * (xy * b[0] + yy * b[1] + yz * b[2])
-            + a[2] * (zx * b[0] + yz * b[1] + zz * b[2]))
+def projection_coefficients(u, v):
+    """6-tuples ``(alpha, beta)`` with ``s_uu - s_vv = alpha . s6`` and ``2 s_uv = beta . s6``.
+
+    Constant along a ray, so a march computes them once and spends six
+    multiply-adds per quantity and step instead of the full bilinear forms.
+    """
+    alpha = (u[0] * u[0] - v[0] * v[0], u[1] * u[1] - v[1] * v[1], u[2] * u[2] - v[2] * v[2],
+             2.0 * (u[1] * u[2] - v[1] * v[2]), 2.0 * (u[2] * u[0] - v[2] * v[0]),
+             2.0 * (u[0] * u[1] - v[0] * v[1]))
+    beta = (2.0 * u[0] * v[0], 2.0 * u[1] * v[1], 2.0 * u[2] * v[2],
+            2.0 * (u[1] * v[2] + u[2] * v[1]), 2.0 * (u[2] * v[0] + u[0] * v[2]),
+            2.0 * (u[0] * v[1] + u[1] * v[0]))
+    return alpha, beta
+
+
+def apply_coefficients(coefficients, s6):
+    """``(s_uu - s_vv, 2 s_uv)`` from :func:`projection_coefficients`."""
+    alpha, beta = coefficients
+    return (sum(a * s for a, s in zip(alpha, s6)), sum(b * s for b, s in zip(beta, s6)))
 
 
 def project(s6, u, v):
     """Transverse stress difference ``(s_uu - s_vv, 2 s_uv)``: all the optics sees."""
-    return bilinear(s6, u, u) - bilinear(s6, v, v), 2.0 * bilinear(s6, u, v)
+    return apply_coefficients(projection_coefficients(u, v), s6)
 
 
 def symmetric_outer(scale, a, b):
