@@ -104,9 +104,11 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
         bar.close()
     dr.sync_thread()
     seconds = time.perf_counter() - start
-    total /= passes
+    if passes > 1:
+        total /= passes
     names = _channel_names(film, total.shape[-1])
-    channels = {name: np.ascontiguousarray(total[..., i], dtype=np.float32) for i, name in enumerate(names)}
+    # Views into the (H, W, C) image: a transposing copy costs more than the render.
+    channels = {name: total[..., index] for index, name in enumerate(names)}
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
                 "mi_nest.integrator": scene.integrator().class_name()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata)

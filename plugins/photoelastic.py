@@ -92,9 +92,31 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
+        film = sensor.film()
+        if not _sums_pixels_directly(film):
+            self._setup = self.check_scene(scene, sensor)
+            try:
+                return super().render(scene, sensor, seed, spp, develop, evaluate)
+            finally:
+                self._setup = None
+        if not develop:
+            raise ValueError("photoelastic: develop=True must be specified")
         self._setup = self.check_scene(scene, sensor)
         try:
-            return super().render(scene, sensor, seed, spp, develop, evaluate)
+            with dr.suspend_grad():
+                sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
+                ray, weight, _ = self.sample_rays(scene, sensor, sampler)
+                main, _, aovs, _ = self.sample(dr.ADMode.Primal, scene, sampler, ray, mi.Bool(True))
+                value = (main * weight)[0]
+                # The channel layout of ADIntegrator._splat_to_block: colour, alpha, weight, AOVs.
+                one = dr.full(mi.Float, 1.0, dr.width(value))
+                channels = [value, value, value]
+                if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+                    channels.append(one)
+                channels += [one] + aovs
+                film.put_block(mi.ImageBlock(_pixel_sums(film, spp, channels), film.crop_offset(),
+                                             film.rfilter()))
+                return film.develop()
         finally:
             self._setup = None
 
@@ -179,6 +201,27 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         p = dr.fma(d, (mi.Float(index) + offset) * h, origin)
         p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
         return su2.step(p_diff, q_diff, h)
+
+
+def _sums_pixels_directly(film):
+    """A box-filtered film without border receives each sample in its own pixel only."""
+    return film.rfilter().is_box_filter() and not film.sample_border() and \
+        film.rfilter().border_size() == 0
+
+
+def _pixel_sums(film, spp, channels):
+    """Sum the ``spp`` consecutive samples of each pixel into an (H, W, C) image block tensor.
+
+    ``ADIntegrator.sample_rays`` orders samples pixel by pixel, row-major, so a
+    block reduction and one interleaving pass replace an atomic add per sample
+    and channel in ``ImageBlock.put``.
+    """
+    width, height = film.crop_size()
+    if spp > 1:
+        dr.eval(channels)   # one march for all channels, not one per reduction
+        channels = [dr.block_sum(channel, spp) for channel in channels]
+    interleaved = dr.ravel(mi.ArrayXf(channels), order="F")
+    return mi.TensorXf(interleaved, (height, width, len(channels)))
 
 
 def _identity_unless(keep, q):
