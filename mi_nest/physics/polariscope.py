@@ -13,6 +13,7 @@ a handful of multiply-adds per ray for any polariscope.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Optional
 
 import numpy as np
@@ -69,12 +70,7 @@ class Polariscope:
 
     def coefficients(self):
         """Per output row, the real and imaginary parts of ``kappa`` as float tuples."""
-        e = self.input_state()
-        terms = []
-        for w in self.output_rows():
-            kappa = np.einsum("i,kij,j->k", w, _BASIS, e)
-            terms.append((tuple(float(x) for x in kappa.real), tuple(float(x) for x in kappa.imag)))
-        return tuple(terms)
+        return _coefficients(self)
 
     def intensity(self, q):
         """Detected intensity for the quaternion ``q`` (NumPy or Dr.Jit arrays)."""
@@ -89,6 +85,17 @@ class Polariscope:
         """Full system matrix for a Jones matrix ``J`` (NumPy; used by tests and calibration)."""
         system = J @ (self.input_state()[:, None])
         return self.output_rows() @ system
+
+
+@lru_cache(maxsize=256)
+def _coefficients(scope):
+    # Renderers trace the intensities on every call: compute each polariscope's forms once.
+    e = scope.input_state()
+    terms = []
+    for w in scope.output_rows():
+        kappa = np.einsum("i,kij,j->k", w, _BASIS, e)
+        terms.append((tuple(float(x) for x in kappa.real), tuple(float(x) for x in kappa.imag)))
+    return tuple(terms)
 
 
 def measurement_name(input_qwp, output_qwp, analyzer):
