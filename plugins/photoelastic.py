@@ -92,33 +92,33 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        film = sensor.film()
-        if not _sums_pixels_directly(film):
-            self._setup = self.check_scene(scene, sensor)
-            try:
-                return super().render(scene, sensor, seed, spp, develop, evaluate)
-            finally:
-                self._setup = None
-        if not develop:
-            raise ValueError("photoelastic: develop=True must be specified")
         self._setup = self.check_scene(scene, sensor)
         try:
-            with dr.suspend_grad():
-                sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
-                ray, weight, _ = self.sample_rays(scene, sensor, sampler)
-                main, _, aovs, _ = self.sample(dr.ADMode.Primal, scene, sampler, ray, mi.Bool(True))
-                value = (main * weight)[0]
-                # The channel layout of ADIntegrator._splat_to_block: colour, alpha, weight, AOVs.
-                one = dr.full(mi.Float, 1.0, dr.width(value))
-                channels = [value, value, value]
-                if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
-                    channels.append(one)
-                channels += [one] + aovs
-                film.put_block(mi.ImageBlock(_pixel_sums(film, spp, channels), film.crop_offset(),
-                                             film.rfilter()))
-                return film.develop()
+            if not _sums_pixels_directly(sensor.film()):
+                return super().render(scene, sensor, seed, spp, develop, evaluate)
+            if not develop:
+                raise ValueError("photoelastic: develop=True must be specified")
+            return self._render_pixel_sums(scene, sensor, seed, spp)
         finally:
             self._setup = None
+
+    def _render_pixel_sums(self, scene, sensor, seed, spp):
+        """``ADIntegrator.render`` for box-filtered films, without per-sample atomics."""
+        film = sensor.film()
+        with dr.suspend_grad():
+            sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
+            ray, weight, _ = self.sample_rays(scene, sensor, sampler)
+            main, _, aovs, _ = self.sample(dr.ADMode.Primal, scene, sampler, ray, mi.Bool(True))
+            value = (main * weight)[0]
+            # The channel layout of ADIntegrator._splat_to_block: colour, alpha, weight, AOVs.
+            one = dr.full(mi.Float, 1.0, dr.width(value))
+            channels = [value, value, value]
+            if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+                channels.append(one)
+            channels += [one] + aovs
+            film.put_block(mi.ImageBlock(_pixel_sums(film, spp, channels), film.crop_offset(),
+                                         film.rfilter()))
+            return film.develop()
 
     def render_forward(self, *args, **kwargs):
         raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
