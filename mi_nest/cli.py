@@ -42,11 +42,11 @@ def _render(scene_file, output, defines, png=None, spp=None, seed=0, progress=Tr
     scene = load_scene(scene_file, **dict(defines))
     result = render(scene, spp=spp, seed=seed, progress=progress)
     result.write_exr(output)
-    print(f"wrote {output} ({len(result.channels)} channels, {result.main.shape[1]}x{result.main.shape[0]}, "
+    print(f"wrote {Path(output).resolve()} ({len(result.channels)} channels, {result.main.shape[1]}x{result.main.shape[0]}, "
           f"{result.seconds:.2f} s)")
     if png:
         result.write_png(png)
-        print(f"wrote {png}")
+        print(f"wrote {Path(png).resolve()}")
     return scene, result
 
 
