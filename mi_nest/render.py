@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -80,7 +79,6 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     if not hasattr(integrator, "check_scene"):
         raise SceneError(f'the scene\'s integrator is {integrator.class_name()}; mi_nest renders with '
                          '<integrator type="photoelastic">')
-    integrator.check_scene(scene, sensor)
     spp = spp or sensor.sampler().sample_count()
     if spp < 1:
         raise SceneError(f"spp must be >= 1, got {spp}")
@@ -95,14 +93,18 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     start = time.perf_counter()
     total = None
     for index in range(passes):
-        image = mi.render(scene, spp=spp // passes, seed=seed * passes + index)
-        image = image.numpy()
+        try:
+            image = mi.render(scene, spp=spp // passes, seed=seed * passes + index).numpy()
+        except Exception:
+            # mi.render reports only "error while performing a custom differentiable
+            # operation"; checking the scene raises the cause when the scene is at fault.
+            integrator.check_scene(scene, sensor)
+            raise
         total = image if total is None else total + image
         if bar is not None:
             bar.update()
     if bar is not None:
         bar.close()
-    dr.sync_thread()
     seconds = time.perf_counter() - start
     if passes > 1:
         total /= passes
@@ -110,7 +112,7 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     # Views into the (H, W, C) image: a transposing copy costs more than the render.
     channels = {name: total[..., index] for index, name in enumerate(names)}
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
-                "mi_nest.integrator": scene.integrator().class_name()}
+                "mi_nest.integrator": integrator.class_name()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata)
 
 

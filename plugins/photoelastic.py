@@ -177,7 +177,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         multiply on the right. The chord's front and back halves are two
         independent products advanced in the same iteration (then joined, which
         is exact): two dependency chains keep the vector units busy where a
-        single chain would leave them waiting on its latency.
+        single chain would leave them waiting on its latency. An odd count
+        leaves the back half one index past the end: a zero-length step.
         """
         steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self.step_size), 1), 0))
         h = chord / mi.Float(dr.maximum(steps, 1))
@@ -186,21 +187,19 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         back = su2.identity(mi.Float(0))
         i = mi.UInt32(0)
         while i < half:
-            front = su2.multiply_renormalized(front, self.step(i, medium, origin, d, h, coefficients,
+            front = su2.multiply_renormalized(front, self.step(i, steps, medium, origin, d, h, coefficients,
                                                                sampler, setup))
-            j = i + half
-            back_step = _identity_unless(j < steps, self.step(j, medium, origin, d, h, coefficients,
-                                                              sampler, setup))
-            back = su2.multiply_renormalized(back, back_step)
+            back = su2.multiply_renormalized(back, self.step(i + half, steps, medium, origin, d, h,
+                                                             coefficients, sampler, setup))
             i += 1
         return su2.multiply(front, back)
 
-    def step(self, index, medium, origin, d, h, coefficients, sampler, setup):
+    def step(self, index, steps, medium, origin, d, h, coefficients, sampler, setup):
         """Exact exponential of step ``index`` of length ``h``, sampled at its midpoint or jittered."""
         offset = sampler.next_1d() if self.jitter else mi.Float(0.5)
         p = dr.fma(d, (mi.Float(index) + offset) * h, origin)
         p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
-        return su2.step(p_diff, q_diff, h)
+        return su2.step(p_diff, q_diff, dr.select(index < steps, h, 0.0))
 
 
 def _sums_pixels_directly(film):
@@ -222,10 +221,6 @@ def _pixel_sums(film, spp, channels):
         channels = [dr.block_sum(channel, spp) for channel in channels]
     interleaved = dr.ravel(mi.ArrayXf(channels), order="F")
     return mi.TensorXf(interleaved, (height, width, len(channels)))
-
-
-def _identity_unless(keep, q):
-    return (dr.select(keep, q[0], 1.0),) + tuple(dr.select(keep, x, 0.0) for x in q[1:])
 
 
 def _past_surface(si, d):

@@ -132,3 +132,12 @@ def test_missing_scene_file_and_unknown_shipped_scene(tmp_path):
         mi_nest.load_scene(tmp_path / "absent.xml")
     with pytest.raises(mi_nest.SceneError, match="no shipped scene 'disc'.*disk_compression"):
         mi_nest.load_scene("disc")
+
+
+def test_scene_with_another_integrator():
+    description = {"type": "scene", "integrator": {"type": "path"},
+                   "light": {"type": "polariscope_light"},
+                   "sensor": {"type": "polariscope", "film": {"type": "hdrfilm", "width": 2, "height": 2}},
+                   "specimen": box((2, 2, 2), interior=medium(xx=1.0))}
+    with pytest.raises(mi_nest.SceneError, match='integrator is PathIntegrator.*type="photoelastic"'):
+        mi_nest.render(mi.load_dict(description))

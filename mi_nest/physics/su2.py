@@ -16,8 +16,6 @@ import numpy as np
 
 from .backend import ops
 
-# Below this phase the sinc series replaces sin(x)/x; it also keeps AD finite at x = 0.
-_SMALL_PHASE = 1e-4
 # Smallest squared phase carried through the square root (AD-safe at zero stress).
 _TINY = 1e-30
 
@@ -88,11 +86,12 @@ def step(p, q, phase):
     xp = ops(p, q, phase)
     x2 = (p * p + q * q) * (phase * phase)
     # One reciprocal square root gives both x and 1/x; one sincos both functions.
+    # sin(x) / x stays accurate for tiny x (sin x = x in float); zero stress or
+    # zero length gives x = 0 and the identity; the floor keeps AD finite there.
     inv_x = xp.rsqrt(xp.maximum(x2, _TINY))
     x = x2 * inv_x
     sin_x, cos_x = xp.sincos(x)
-    sinc = xp.select(x < _SMALL_PHASE, 1.0 - x2 * (1.0 / 6.0), sin_x * inv_x)
-    scale = -phase * sinc
+    scale = -phase * (sin_x * inv_x)
     zero = p * 0.0
     return (cos_x, q * scale, p * scale, zero)
 
