@@ -31,6 +31,19 @@ def test_step_is_the_exact_exponential_of_the_generator():
         np.testing.assert_allclose(J[i], expected, atol=1e-12)
 
 
+def test_cos_sinc_series_and_trigonometric_branches_agree_with_numpy():
+    x = np.concatenate([[0.0, 1e-20, 1e-6], np.linspace(0.01, 40.0, 4001)])
+    expected_sinc = np.sinc(x / np.pi)
+    cos_x, sinc_x = su2.cos_sinc(x * x)
+    np.testing.assert_allclose(cos_x, np.cos(x), atol=1e-8)
+    np.testing.assert_allclose(sinc_x, expected_sinc, atol=1e-8)
+    # float32 packets that mix both branches (x^2 on either side of the series limit).
+    cos_x, sinc_x = su2.cos_sinc(mi.Float((x * x).astype(np.float32)))
+    tolerance = 2e-7 * np.maximum(1.0, x)   # float32 resolution of x itself
+    assert np.all(np.abs(np.array(cos_x) - np.cos(x)) <= tolerance)
+    assert np.all(np.abs(np.array(sinc_x) - expected_sinc) <= tolerance)
+
+
 def test_step_at_zero_and_tiny_stress_is_identity_to_first_order():
     a, b, c, d = su2.step(np.array([0.0, 1e-7]), np.array([0.0, 0.0]), 1.0)
     np.testing.assert_allclose(a, 1.0)

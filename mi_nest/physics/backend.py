@@ -27,6 +27,13 @@ class _NumPyOps:
         return 1.0 / np.sqrt(x)
 
     @staticmethod
+    def replace_where(cond, compute, current, args):
+        """``compute(*args)`` where ``cond`` holds, ``current`` elsewhere."""
+        if not np.any(cond):
+            return current
+        return tuple(np.where(cond, new, old) for new, old in zip(compute(*args), current))
+
+    @staticmethod
     def sign(x):
         return np.where(x < 0, -1.0, 1.0)
 
@@ -43,6 +50,11 @@ class _DrJitOps:
         self.select = dr.select
         self.sincos = dr.sincos
         self.rsqrt = dr.rsqrt
+
+        def replace_where(cond, compute, current, args):
+            # A symbolic if: LLVM skips ``compute`` for every packet with no lane in ``cond``.
+            return dr.if_stmt(args=args, cond=cond, true_fn=compute, false_fn=lambda *_: current)
+        self.replace_where = replace_where
         self.sign = dr.sign
 
 

@@ -18,6 +18,9 @@ from .backend import ops
 
 # Smallest squared phase carried through the square root (AD-safe at zero stress).
 _TINY = 1e-30
+# Largest squared phase for the series of cos and sinc (their first omitted terms,
+# x^12 / 12! and x^12 / 13!, are below 3e-9 there).
+_SERIES_LIMIT = 1.0
 
 
 def identity(like=0.0):
@@ -83,17 +86,33 @@ def step(p, q, phase):
     ``q = 2 s_uv``. The result is a retarder of retardance
     ``Delta = 2 phase sqrt(p^2 + q^2)`` with axis ``0.5 atan2(q, p)``.
     """
-    xp = ops(p, q, phase)
-    x2 = (p * p + q * q) * (phase * phase)
-    # One reciprocal square root gives both x and 1/x; one sincos both functions.
-    # sin(x) / x stays accurate for tiny x (sin x = x in float); zero stress or
-    # zero length gives x = 0 and the identity; the floor keeps AD finite there.
-    inv_x = xp.rsqrt(xp.maximum(x2, _TINY))
-    x = x2 * inv_x
-    sin_x, cos_x = xp.sincos(x)
-    scale = -phase * (sin_x * inv_x)
+    cos_x, sinc_x = cos_sinc((p * p + q * q) * (phase * phase))
+    scale = -phase * sinc_x
     zero = p * 0.0
     return (cos_x, q * scale, p * scale, zero)
+
+
+def cos_sinc(x2):
+    """``(cos x, sin(x) / x)`` from ``x^2``, exact to float32 rounding for any x.
+
+    Both are even in x: for ``x^2 <= 1`` (a retardance of at most 2 rad per step,
+    the usual case) their Taylor series in x^2 up to x^10 are exact in float32 and
+    need neither a square root nor a range reduction; larger phases take
+    ``sincos``, which Dr.Jit only runs for the vector packets that need it.
+    """
+    xp = ops(x2)
+    cos_x = 1.0 + x2 * (-1 / 2 + x2 * (1 / 24 + x2 * (-1 / 720 + x2 * (1 / 40320 + x2 * (-1 / 3628800)))))
+    sinc_x = 1.0 + x2 * (-1 / 6 + x2 * (1 / 120 + x2 * (-1 / 5040 + x2 * (1 / 362880
+                                                                             + x2 * (-1 / 39916800)))))
+    return xp.replace_where(x2 > _SERIES_LIMIT, lambda x2: _cos_sinc_trigonometric(x2, xp),
+                            (cos_x, sinc_x), (x2,))
+
+
+def _cos_sinc_trigonometric(x2, xp):
+    # The floor keeps the reciprocal (and AD) finite at x = 0.
+    inv_x = xp.rsqrt(xp.maximum(x2, _TINY))
+    sin_x, cos_x = xp.sincos(x2 * inv_x)
+    return cos_x, sin_x * inv_x
 
 
 def retarder(delta, theta):
