@@ -7,7 +7,6 @@ from importlib import resources
 from pathlib import Path
 
 import mitsuba as mi
-import numpy as np
 
 from . import __version__
 

@@ -1,7 +1,6 @@
 """Stress sources: closed-form equilibrium and boundary tractions, grid lookup, traverse()."""
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -8,7 +8,7 @@ import trimesh
 
 import mi_nest
 from mi_nest.fields import DiskCompressionField
-from mi_nest.physics import MEASUREMENTS, Polariscope, su2
+from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.polariscope import rotation
 from scenes import BREWSTER, WAVELENGTH, box, medium, render, scene
 
