@@ -33,6 +33,10 @@ def _parser():
     demo = commands.add_parser("demo", help="render the default scene (disk under diametral compression)")
     demo.add_argument("-o", "--output-dir", default="mi_nest_out", help="where to write (default: mi_nest_out)")
 
+    export = commands.add_parser("export", help="write a stress file as VTK (.vtu) for ParaView")
+    export.add_argument("field", help="stress file: grid or mesh .npz, 3D-TSV .stress")
+    export.add_argument("-o", "--output", required=True, help="output .vtu path")
+
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
 
@@ -63,6 +67,12 @@ def _demo(output_dir):
     return result
 
 
+def _export(field, output):
+    from .fields.sources import export_vtu
+    summary = export_vtu(field, output)
+    print(f"wrote {Path(output).resolve()} ({summary})")
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
@@ -71,6 +81,8 @@ def main(argv=None):
                     progress=not args.quiet)
         elif args.command == "demo":
             _demo(args.output_dir)
+        elif args.command == "export":
+            _export(args.field, args.output)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):

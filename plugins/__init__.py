@@ -7,7 +7,7 @@ base classes, so :func:`register` re-imports them whenever the variant changes.
 import importlib
 import sys
 
-MODULES = ("stress", "polariscope_light", "polariscope", "photoelastic")
+MODULES = ("stress", "specimen", "polariscope_light", "polariscope", "photoelastic")
 
 
 def register():

@@ -32,9 +32,15 @@ class StressMedium(mi.Medium):
 
      * - filename
        - |string|
-       - Stress grid ``.npz``: ``stress`` (Z, Y, X, 6) in MPa, 3D-TSV order
-         (xx, yy, zz, yz, zx, xy), ``bbox_min``/``bbox_max`` in mm; trilinear
-         lookup, differentiable through ``mi.traverse`` as ``stress``.
+       - Stress file: a grid ``.npz`` (``stress`` (Z, Y, X, 6) in MPa, 3D-TSV
+         order xx, yy, zz, yz, zx, xy, ``bbox_min``/``bbox_max`` in mm), a mesh
+         ``.npz`` (``nodes``, ``cells``, nodal ``stress``: FEM results) or a 3D-TSV
+         ``.stress`` file. Meshes are resampled onto a grid; lookups are
+         trilinear and differentiable through ``mi.traverse`` as ``stress``.
+
+     * - grid_resolution
+       - |int|
+       - Grid nodes along the longest axis when resampling a mesh. (Default: 64)
 
      * - model
        - |string|
@@ -118,8 +124,11 @@ def _field_from_properties(props):
                          f"or 'model' (one of {sorted(MODELS)})")
     if has_file:
         from mi_nest.fields.grid import GridField
-        from mi_nest.io.grid import load_stress_grid
-        return GridField(load_stress_grid(props["filename"]))
+        from mi_nest.fields.sources import grid_from_file
+        resolution = int(props.get("grid_resolution", 64))
+        if resolution < 2:
+            raise ValueError(f"stress medium: 'grid_resolution' must be at least 2, got {resolution}")
+        return GridField(grid_from_file(props["filename"], resolution))
     name = props["model"]
     if name not in MODELS:
         raise ValueError(f"stress medium: unknown model '{name}'; available: {sorted(MODELS)}")

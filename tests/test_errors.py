@@ -40,7 +40,7 @@ def test_a_valid_scene_loads(tmp_path):
 
 
 def test_missing_field_file(tmp_path):
-    with pytest.raises(mi_nest.SceneError, match="stress grid file not found: .*nowhere.npz"):
+    with pytest.raises(mi_nest.SceneError, match="stress file not found: .*nowhere.npz"):
         load_xml(tmp_path, f'<string name="filename" value="{tmp_path}/nowhere.npz"/>')
 
 

@@ -1,0 +1,79 @@
+"""Stress files of every supported kind, turned into the grid a ``stress`` medium renders."""
+from __future__ import annotations
+
+import os
+import zipfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..io.grid import GridFileError, load_stress_grid
+from ..io.mesh import is_mesh_npz, load_mesh_arrays
+from ..io.tsv import read_stress_file
+from .mesh import TetMeshStress
+
+SUFFIXES = (".npz", ".stress")
+
+
+def is_mesh_file(path):
+    """Whether ``path`` holds stress on a mesh (3D-TSV ``.stress``, mesh ``.npz``) rather than a grid."""
+    path = Path(path)
+    if path.suffix == ".stress":
+        return True
+    try:
+        with np.load(path) as data:
+            return is_mesh_npz(data.files)
+    except (OSError, ValueError, zipfile.BadZipFile) as error:
+        raise GridFileError(f"{path}: not a readable .npz stress file ({error})") from error
+
+
+def mesh_arrays(path):
+    """``(nodes, cells, stress)`` of a mesh file, cells as stored (tetrahedra or hexahedra)."""
+    path = Path(path)
+    if path.suffix == ".stress":
+        model = read_stress_file(path)
+        return model.vertices, model.elements, model.stress
+    return load_mesh_arrays(path)
+
+
+def load_mesh(path) -> TetMeshStress:
+    """The mesh of a 3D-TSV ``.stress`` file or of a mesh ``.npz`` (FEM result)."""
+    return TetMeshStress.from_cells(*mesh_arrays(path))
+
+
+def export_vtu(path, output, resolution=64):
+    """Write any stress file as ``.vtu``: meshes with their own cells, grids as hexahedra."""
+    from ..io.vtk import write_grid_vtu, write_mesh_vtu
+    if Path(path).is_file() and is_mesh_file(path):
+        nodes, cells, stress = mesh_arrays(path)
+        load_mesh(path)   # validates the mesh before writing it out
+        write_mesh_vtu(output, nodes, cells, stress)
+        return f"{len(nodes)} nodes, {len(cells)} cells"
+    grid = grid_from_file(path, resolution)
+    write_grid_vtu(output, grid)
+    return "grid " + "x".join(str(n) for n in grid.stress.shape[2::-1])
+
+
+def grid_from_file(path, resolution=64):
+    """A :class:`~mi_nest.io.grid.StressGrid` from any supported stress file.
+
+    Grids load as they are; meshes (``.stress``, mesh ``.npz``) are resampled with
+    ``resolution`` nodes along their longest axis. Results are cached by path,
+    modification time and resolution, so a specimen and its medium parse once.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise GridFileError(f"stress file not found: {path}")
+    if path.suffix not in SUFFIXES:
+        raise GridFileError(f"{path}: unsupported stress file type '{path.suffix}'; supported: "
+                            f"{', '.join(SUFFIXES)} (grid or mesh .npz, 3D-TSV .stress)")
+    stat = os.stat(path)
+    return _grid_cached(str(path.resolve()), stat.st_mtime_ns, int(resolution))
+
+
+@lru_cache(maxsize=8)
+def _grid_cached(path, mtime_ns, resolution):
+    if not is_mesh_file(path):
+        return load_stress_grid(path)
+    return load_mesh(path).to_grid(resolution)
