@@ -5,6 +5,8 @@ import numpy as np
 
 from mi_nest.fields.sources import load_mesh
 
+from .stress import resolve_path
+
 # Properties handed on to the interior stress medium.
 _MEDIUM_PROPERTIES = ("stress_optic_coefficient", "fringe_value", "wavelength", "grid_resolution")
 
@@ -44,7 +46,7 @@ class Specimen(mi.Mesh):
     """
 
     def __init__(self, props):
-        filename = props["filename"]
+        filename = resolve_path(props["filename"])
         mesh = load_mesh(filename)
         medium = {"type": "stress", "filename": filename}
         for key in _MEDIUM_PROPERTIES:

@@ -108,6 +108,11 @@ class StressMedium(mi.Medium):
                 f"wavelength={self.wavelength:g} nm, field={self.field!r}]")
 
 
+def resolve_path(filename):
+    """A file name as Mitsuba resolves it: relative to the scene file being loaded."""
+    return str(mi.file_resolver().resolve(str(filename)))
+
+
 def _positive(props, name, default):
     if name not in props and default is not None:
         return default
@@ -128,7 +133,7 @@ def _field_from_properties(props):
         resolution = int(props.get("grid_resolution", 64))
         if resolution < 2:
             raise ValueError(f"stress medium: 'grid_resolution' must be at least 2, got {resolution}")
-        return GridField(grid_from_file(props["filename"], resolution))
+        return GridField(grid_from_file(resolve_path(props["filename"]), resolution))
     name = props["model"]
     if name not in MODELS:
         raise ValueError(f"stress medium: unknown model '{name}'; available: {sorted(MODELS)}")
