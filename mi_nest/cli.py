@@ -33,9 +33,14 @@ def _parser():
     demo = commands.add_parser("demo", help="render the default scene (disk under diametral compression)")
     demo.add_argument("-o", "--output-dir", default="mi_nest_out", help="where to write (default: mi_nest_out)")
 
-    export = commands.add_parser("export", help="write a stress file as VTK (.vtu) for ParaView")
-    export.add_argument("field", help="stress file: grid or mesh .npz, 3D-TSV .stress")
+    export = commands.add_parser("export", help="write a stress field as VTK (.vtu) for ParaView")
+    export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .stress), or a scene "
+                                      "(XML file or shipped name) whose specimens are sampled on grids")
     export.add_argument("-o", "--output", required=True, help="output .vtu path")
+    export.add_argument("-D", dest="defines", action="append", type=_definition, default=[],
+                        metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
+    export.add_argument("--resolution", type=int, default=64,
+                        help="grid nodes along the longest axis when sampling (default: 64)")
 
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
@@ -67,10 +72,16 @@ def _demo(output_dir):
     return result
 
 
-def _export(field, output):
-    from .fields.sources import export_vtu
-    summary = export_vtu(field, output)
-    print(f"wrote {Path(output).resolve()} ({summary})")
+def _export(field, output, defines, resolution):
+    from .fields.sources import SUFFIXES, export_vtu
+    if Path(field).suffix in SUFFIXES:
+        summary = export_vtu(field, output, resolution)
+        print(f"wrote {Path(output).resolve()} ({summary})")
+        return
+    from . import load_scene
+    from .export import export_scene_vtu
+    for path in export_scene_vtu(load_scene(field, **dict(defines)), output, resolution):
+        print(f"wrote {path.resolve()}")
 
 
 def main(argv=None):
@@ -82,7 +93,7 @@ def main(argv=None):
         elif args.command == "demo":
             _demo(args.output_dir)
         elif args.command == "export":
-            _export(args.field, args.output)
+            _export(args.field, args.output, args.defines, args.resolution)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):

@@ -149,3 +149,19 @@ def _specimen_scene(tmp_path, stress_file):
         <float name="fringe_value" value="10"/></shape>
 </scene>""")
     return path
+
+
+def test_scene_fields_export_to_vtk_including_analytic_models(tmp_path, capsys):
+    from mi_nest.cli import main
+    output = tmp_path / "disk.vtu"
+    # 49 nodes across the 40 mm disk put one node at its centre.
+    assert main(["export", "disk_compression", "-o", str(output), "--resolution", "49", "-D", "load=500"]) == 0
+    assert str(output) in capsys.readouterr().out
+    exported = meshio.read(output)
+    centre = np.argmin(np.linalg.norm(exported.points, axis=1))
+    assert np.linalg.norm(exported.points[centre]) < 1e-5
+    difference = exported.point_data["sigma_1_minus_sigma_3"][centre]
+    assert difference == pytest.approx(8 * 500 / (math.pi * 40 * 6), rel=1e-5)
+    with pytest.raises(ValueError, match="no shape with a stress medium"):
+        from mi_nest.export import export_scene_vtu
+        export_scene_vtu(mi.load_dict({"type": "scene", "s": {"type": "cube"}}), tmp_path / "none.vtu")

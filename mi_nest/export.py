@@ -1,0 +1,48 @@
+"""Stress fields of a loaded scene, sampled on grids and written for ParaView."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import mitsuba as mi
+import numpy as np
+
+from .io.grid import StressGrid
+from .io.vtk import write_grid_vtu
+
+
+def specimen_grids(scene, resolution=64):
+    """One :class:`StressGrid` per shape with a ``stress`` medium, over the shape's bounding box.
+
+    Samples the medium's field at the grid nodes exactly as the renderer evaluates
+    it (analytic models included); nodes outside the shape carry the field's value
+    there, which the renderer never uses.
+    """
+    grids = []
+    for shape in scene.shapes():
+        medium = shape.interior_medium()
+        if medium is None or not hasattr(medium, "stress"):
+            continue
+        box = shape.bbox()
+        lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
+        spacing = (hi - lo).max() / (int(resolution) - 1)
+        counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
+        axes = [np.linspace(lo[i], hi[i], counts[i]) for i in range(3)]
+        z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+        points = mi.Point3f(*(mi.Float(a.ravel().astype(np.float32)) for a in (x, y, z)))
+        values = np.stack([np.broadcast_to(np.array(c, dtype=np.float32), (points.x.shape[0],))
+                           for c in medium.stress(points)], axis=-1)
+        grids.append(StressGrid(values.reshape(*z.shape, 6), lo, hi))
+    return grids
+
+
+def export_scene_vtu(scene, output, resolution=64):
+    """Write each specimen's field as ``output`` (``output-<i>.vtu`` when there are several)."""
+    grids = specimen_grids(scene, resolution)
+    if not grids:
+        raise ValueError("the scene has no shape with a stress medium to export")
+    output = Path(output)
+    paths = [output] if len(grids) == 1 else [output.with_name(f"{output.stem}-{i}{output.suffix}")
+                                              for i in range(len(grids))]
+    for grid, path in zip(grids, paths):
+        write_grid_vtu(path, grid)
+    return paths
