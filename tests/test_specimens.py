@@ -165,3 +165,38 @@ def test_scene_fields_export_to_vtk_including_analytic_models(tmp_path, capsys):
     with pytest.raises(ValueError, match="no shape with a stress medium"):
         from mi_nest.export import export_scene_vtu
         export_scene_vtu(mi.load_dict({"type": "scene", "s": {"type": "cube"}}), tmp_path / "none.vtu")
+
+
+def test_carti_grid_orientation_order_and_rendering(tmp_path):
+    from mi_nest.io.carti import read_carti_file, write_carti_file
+    cells, lower, upper = (4, 3, 2), (0.0, -3.0, 1.0), (8.0, 3.0, 5.0)
+    # An L-shaped solid: every voxel but those with ix >= 2 and iy == 0 (the top row, y max).
+    ix, iy, iz = np.meshgrid(np.arange(4), np.arange(3), np.arange(2), indexing="ij")
+    ids = (iy + 3 * (ix + 4 * iz)).ravel()
+    solid = ids[~((ix >= 2) & (iy == 0)).ravel()]
+    gradient = np.array([[1.0, 0.2, 0.0, 0.1, 0.0, 0.3], [0.5, -1.0, 0.2, 0.0, 0.4, 0.0], [0.0, 0.3, 2.0, 0.0, 0.0, -0.2]])
+    write_carti_file(tmp_path / "l.carti", cells, lower, upper, solid, lambda p: p @ gradient,
+                     node_forces=[(0, 0.0, 0.0, -5.0)], fixed_nodes=[1, 2])
+    carti = read_carti_file(tmp_path / "l.carti")
+    model = carti.model()
+    assert model.elements.shape == (len(solid), 8) and model.node_forces.shape == (1, 4)
+    # Each node's stress row matches its position: pins y orientation and the id order.
+    np.testing.assert_allclose(model.stress, model.vertices @ gradient, atol=1e-6)
+    mesh = model.mesh()
+    surface = trimesh.Trimesh(mesh.nodes, mesh.surface, process=False)
+    assert surface.is_watertight and surface.volume == pytest.approx(8 * 6 * 4 * (1 - 2 / 12), rel=1e-9)
+    # The missing voxels are at the top (largest y), right (largest x).
+    assert not np.any((mesh.nodes[:, 0] > 4.0 + 1e-9) & (mesh.nodes[:, 1] > 1.0 + 1e-9))
+    grid = grid_from_file(tmp_path / "l.carti")
+    z, y, x = np.meshgrid(*[np.linspace(grid.bbox_min[i], grid.bbox_max[i], n)
+                            for i, n in zip((2, 1, 0), grid.stress.shape[:3])], indexing="ij")
+    solid_nodes = ~((x > 4.0 + 1e-9) & (y > 1.0 + 1e-9))
+    np.testing.assert_allclose(grid.stress[solid_nodes], (np.stack([x, y, z], -1) @ gradient)[solid_nodes],
+                               atol=1e-5)
+    specimen = {"type": "specimen", "filename": str(tmp_path / "l.carti"), "fringe_value": 50.0}
+    channels = mi_nest.render(scene([specimen], res=8, view=5.0, origin=(4, 0, 100), target=(4, 0, 0),
+                                    step=0.25)).channels
+    assert np.all(np.isfinite(channels["char.delta"])) and channels["char.delta"].std() > 0.01
+    (tmp_path / "cut.carti").write_text("\n".join((tmp_path / "l.carti").read_text().splitlines()[:-5]))
+    with pytest.raises(TsvFileError, match="ends early"):
+        read_carti_file(tmp_path / "cut.carti")

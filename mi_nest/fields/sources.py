@@ -8,18 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.grid import GridFileError, load_stress_grid
+from ..io.carti import read_carti_file
+from ..io.grid import GridFileError, StressGrid, load_stress_grid
 from ..io.mesh import is_mesh_npz, load_mesh_arrays
 from ..io.tsv import read_stress_file
 from .mesh import TetMeshStress
 
-SUFFIXES = (".npz", ".stress")
+SUFFIXES = (".npz", ".stress", ".carti")
 
 
 def is_mesh_file(path):
     """Whether ``path`` holds stress on a mesh (3D-TSV ``.stress``, mesh ``.npz``) rather than a grid."""
     path = Path(path)
-    if path.suffix == ".stress":
+    if path.suffix in (".stress", ".carti"):
         return True
     try:
         with np.load(path) as data:
@@ -31,8 +32,8 @@ def is_mesh_file(path):
 def mesh_arrays(path):
     """``(nodes, cells, stress)`` of a mesh file, cells as stored (tetrahedra or hexahedra)."""
     path = Path(path)
-    if path.suffix == ".stress":
-        model = read_stress_file(path)
+    if path.suffix in (".stress", ".carti"):
+        model = read_stress_file(path) if path.suffix == ".stress" else read_carti_file(path).model()
         return model.vertices, model.elements, model.stress
     return load_mesh_arrays(path)
 
@@ -58,7 +59,8 @@ def export_vtu(path, output, resolution=64):
 def grid_from_file(path, resolution=64):
     """A :class:`~mi_nest.io.grid.StressGrid` from any supported stress file.
 
-    Grids load as they are; meshes (``.stress``, mesh ``.npz``) are resampled with
+    Grids and ``.carti`` files load at their own nodes; meshes (``.stress``, mesh
+    ``.npz``) are resampled with
     ``resolution`` nodes along their longest axis. Results are cached by path,
     modification time and resolution, so a specimen and its medium parse once.
     """
@@ -67,13 +69,17 @@ def grid_from_file(path, resolution=64):
         raise GridFileError(f"stress file not found: {path}")
     if path.suffix not in SUFFIXES:
         raise GridFileError(f"{path}: unsupported stress file type '{path.suffix}'; supported: "
-                            f"{', '.join(SUFFIXES)} (grid or mesh .npz, 3D-TSV .stress)")
+                            f"{', '.join(SUFFIXES)} (grid or mesh .npz, 3D-TSV .stress or .carti)")
     stat = os.stat(path)
     return _grid_cached(str(path.resolve()), stat.st_mtime_ns, int(resolution))
 
 
 @lru_cache(maxsize=8)
 def _grid_cached(path, mtime_ns, resolution):
+    if path.endswith(".carti"):
+        # Nodal values on a regular grid: trilinear lookup is the hexahedral interpolation itself.
+        carti = read_carti_file(path)
+        return StressGrid(carti.grid_stress(), carti.lower, carti.upper)
     if not is_mesh_file(path):
         return load_stress_grid(path)
     return load_mesh(path).to_grid(resolution)
