@@ -44,9 +44,11 @@ class StressMedium(mi.Medium):
 
      * - model
        - |string|
-       - Closed-form field instead of a file: ``uniform``, ``twisted`` or
-         ``disk_compression``; its parameters (see ``mi_nest.fields.analytic``)
-         are given as further properties.
+       - Closed-form field instead of a file: ``uniform``, ``twisted``,
+         ``disk_compression``, ``stacked_disks``, ``lame_cylinder``,
+         ``shaft_torsion``, ``beam_bending``, ``kirsch_plate`` or ``boussinesq``;
+         its parameters (see ``mi_nest.fields.analytic``) are given as further
+         properties.
 
     The interior of the enclosing (closed, outward-oriented) shape holds a
     stress field in MPa; scene lengths are mm, so the retardance of a constant

@@ -41,3 +41,10 @@ def test_an_explicit_variant_is_respected():
 def test_shipped_scenes_are_package_data():
     path = mi_nest.scene_path("disk_compression")
     assert path.is_file() and (path.parent / "meshes" / "disk.ply").is_file()
+
+
+def test_the_stress_medium_documents_every_model():
+    from mi_nest.fields import MODELS
+    from mi_nest.plugins.stress import StressMedium
+    for name in MODELS:
+        assert f"``{name}``" in StressMedium.__doc__, name
