@@ -202,6 +202,36 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return su2.step(p_diff, q_diff, dr.select(index < steps, h, 0.0))
 
 
+# Shapes known to be closed, by registry id and face count (checking costs a pass over the faces).
+_CLOSED_SHAPES = set()
+# Mitsuba's analytic shapes that bound a volume (cylinder and disk are open surfaces).
+_CLOSED_ANALYTIC_SHAPES = ("Sphere",)
+
+
+def _require_closed(shape, shape_id):
+    """A specimen must be a closed surface, or rays that enter it never leave."""
+    name = shape.id() or shape.class_name()
+    if not shape.is_mesh():
+        if shape.class_name() not in _CLOSED_ANALYTIC_SHAPES:
+            raise SceneSetupError(f"photoelastic: specimen '{name}' ({shape.class_name()}) is not a closed "
+                                  "surface; use a closed mesh (or a sphere) to hold a stress medium")
+        return
+    key = (shape_id, shape.face_count())
+    if key in _CLOSED_SHAPES:
+        return
+    # Weld by position: meshes repeat vertices along creases (Mitsuba's cube does), as exact copies.
+    positions = np.array(shape.vertex_positions_buffer()).reshape(-1, 3)
+    _, welded = np.unique(positions, axis=0, return_inverse=True)
+    faces = welded.ravel()[np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, uses = np.unique(edges, axis=0, return_counts=True)
+    open_edges = int(np.count_nonzero(uses != 2))
+    if open_edges:
+        raise SceneSetupError(f"photoelastic: specimen '{name}' is not a closed mesh ({open_edges} edges not "
+                              "shared by exactly two faces); rays entering it would never leave")
+    _CLOSED_SHAPES.add(key)
+
+
 def _sums_pixels_directly(film):
     """A box-filtered film without border receives each sample in its own pixel only."""
     return film.rfilter().is_box_filter() and not film.sample_border() and \
@@ -244,9 +274,10 @@ class _SceneSetup:
         for shape in scene.shapes():
             medium = shape.interior_medium()
             if medium is not None and hasattr(medium, "phase_tensor"):
+                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+                _require_closed(shape, shape_id)
                 if medium not in self.media:
                     self.media.append(medium)
-                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
                 shape_media[shape_id] = self.media.index(medium) + 1
         if not self.media:
             raise SceneSetupError('photoelastic: the scene has no specimen: add a shape with '

@@ -141,3 +141,17 @@ def test_scene_with_another_integrator():
                    "specimen": box((2, 2, 2), interior=medium(xx=1.0))}
     with pytest.raises(mi_nest.SceneError, match='integrator is PathIntegrator.*type="photoelastic"'):
         mi_nest.render(mi.load_dict(description))
+
+
+def test_open_specimen_surfaces_are_refused(tmp_path):
+    import trimesh
+    box_mesh = trimesh.creation.box(extents=(4, 4, 4))
+    open_box = trimesh.Trimesh(box_mesh.vertices, box_mesh.faces[2:], process=False)
+    open_box.export(tmp_path / "open.ply")
+    shapes = [{"type": "ply", "filename": str(tmp_path / "open.ply"), "interior": medium(xx=1.0)}]
+    with pytest.raises(ValueError, match=r"not a closed mesh \(4 edges"):
+        mi_nest.render(scene(shapes))
+    with pytest.raises(ValueError, match=r"\(Cylinder\) is not a closed surface"):
+        mi_nest.render(scene([{"type": "cylinder", "interior": medium(xx=1.0)}]))
+    # A sphere and the cube are closed.
+    assert mi_nest.render(scene([{"type": "sphere", "radius": 2.0, "interior": medium(xx=1.0)}])).main.max() > 0
