@@ -42,6 +42,12 @@ def _parser():
     export.add_argument("--resolution", type=int, default=64,
                         help="grid nodes along the longest axis when sampling (default: 64)")
 
+    fem = commands.add_parser("fem", help="solve a linear-elastic FEM model and write its nodal stress (.npz)")
+    fem.add_argument("--spec", required=True,
+                     help="model file (.toml or .json): geometry, material, loads, fixtures, element order")
+    fem.add_argument("-o", "--output", required=True, help="output mesh stress .npz (a specimen's filename)")
+    fem.add_argument("--order", type=int, choices=(1, 2), help="element order (overrides the spec)")
+
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
 
@@ -84,6 +90,18 @@ def _export(field, output, defines, resolution):
         print(f"wrote {path.resolve()}")
 
 
+def _fem(spec_file, output, order=None):
+    import dataclasses
+    from .fem import load_spec
+    spec = load_spec(spec_file)
+    if order is not None:
+        spec = dataclasses.replace(spec, element_order=order)
+    result = spec.run()
+    result.save(output)
+    print(result.summary())
+    print(f"wrote {Path(output).resolve()} ({result.report.nodes} nodes, {result.report.tets} tets)")
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
@@ -94,6 +112,8 @@ def main(argv=None):
             _demo(args.output_dir)
         elif args.command == "export":
             _export(args.field, args.output, args.defines, args.resolution)
+        elif args.command == "fem":
+            _fem(args.spec, args.output, args.order)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):

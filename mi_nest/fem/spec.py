@@ -1,0 +1,116 @@
+"""A whole FEM model as one declarative spec, read from TOML or JSON.
+
+Example (TOML; lengths mm, forces N, stresses MPa)::
+
+    element_order = 2
+
+    [geometry]
+    type = "cylinder"            # box | cylinder | tube | file
+    radius = 20.0
+    height = 4.0
+    element_size = 1.5
+
+    [material]
+    youngs_modulus = 2500.0
+    poisson_ratio = 0.36
+
+    [solver]                     # optional: method = auto | amg | direct, recovery = l2 | average
+    method = "auto"
+
+    [[loads]]
+    name = "top"
+    type = "force"               # point_force | force | traction | pressure
+    force = [0.0, -1000.0, 0.0]
+    where = { type = "box", min = [-2.0, 19.0, -5.0], max = [2.0, 21.0, 5.0] }
+
+    [[fixtures]]
+    name = "pin"
+    where = { type = "point", point = [-20.0, 0.0, -2.0] }   # components default to x, y, z
+
+Regions (``where``): ``plane`` (point, normal, tolerance), ``box`` (min, max),
+``sphere`` (center, radius), ``cylindrical_surface`` (radius, center, axis,
+tolerance), ``point`` (the nearest boundary node).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .config import FemError, parse_fields
+from .loads import parse_fixture, parse_load
+from .meshing import MeshFileGeometry, parse_geometry
+from .solve import Material, SolverConfig, solve
+
+
+def _parse_list(items, parse, key):
+    if isinstance(items, dict) or not isinstance(items, (list, tuple)):
+        raise FemError(f"'{key}' must be a list of tables ([[{key}]] in TOML), got {type(items).__name__}")
+    return tuple(parse(item, index) for index, item in enumerate(items))
+
+
+@dataclass(frozen=True)
+class FemSpec:
+    """Geometry, material, loads and fixtures of one linear-elastic model, and how to solve it."""
+    geometry: object
+    material: object
+    fixtures: tuple
+    loads: tuple = ()
+    element_order: int = 1
+    solver: object = field(default_factory=SolverConfig)
+
+    def __post_init__(self):
+        object.__setattr__(self, "geometry", parse_geometry(self.geometry))
+        if not isinstance(self.material, Material):
+            object.__setattr__(self, "material", parse_fields(Material, self.material, "material"))
+        if not isinstance(self.solver, SolverConfig):
+            object.__setattr__(self, "solver", parse_fields(SolverConfig, self.solver, "solver"))
+        object.__setattr__(self, "loads", _parse_list(self.loads, parse_load, "loads"))
+        object.__setattr__(self, "fixtures", _parse_list(self.fixtures, parse_fixture, "fixtures"))
+        if self.element_order not in (1, 2) or isinstance(self.element_order, bool):
+            raise FemError(f"'element_order' must be 1 or 2, got {self.element_order!r}")
+        object.__setattr__(self, "element_order", int(self.element_order))     # JSON may say 2.0
+
+    @classmethod
+    def from_dict(cls, data, base=""):
+        """Parse a spec; relative mesh file paths resolve against ``base``."""
+        spec = parse_fields(cls, data, "spec", skip=(), prefix_nested=False)
+        if isinstance(spec.geometry, MeshFileGeometry) and not spec.geometry.base:
+            spec = dataclasses.replace(spec, geometry=dataclasses.replace(spec.geometry, base=str(base)))
+        return spec
+
+    def run(self):
+        """Mesh and solve: a :class:`~mi_nest.fem.solve.FemResult`."""
+        return solve(self.geometry.mesh(), self.material, self.loads, self.fixtures,
+                     element_order=self.element_order, solver=self.solver)
+
+
+def load_spec(path):
+    """A :class:`FemSpec` from a ``.toml`` or ``.json`` file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FemError(f"FEM spec file not found: {path}")
+    try:
+        if path.suffix == ".toml":
+            try:
+                import tomllib
+            except ImportError:                              # Python 3.10
+                try:
+                    import tomli as tomllib
+                except ImportError:
+                    raise FemError("TOML specs need Python 3.11+ or 'pip install tomli'; or use .json") from None
+            with open(path, "rb") as stream:
+                data = tomllib.load(stream)
+        elif path.suffix == ".json":
+            data = json.loads(path.read_text())
+        else:
+            raise FemError(f"{path}: FEM spec files must be .toml or .json, got '{path.suffix}'")
+    except ValueError as error:      # TOMLDecodeError and JSONDecodeError are ValueErrors
+        if isinstance(error, FemError):
+            raise
+        raise FemError(f"{path}: not a valid {path.suffix[1:].upper()} file ({error})") from None
+    try:
+        return FemSpec.from_dict(data, base=path.parent)
+    except FemError as error:
+        raise FemError(f"{path}: {error}") from None
