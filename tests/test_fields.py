@@ -108,3 +108,19 @@ def test_grid_medium_renders_like_the_model_and_is_differentiable(tmp_path):
     params[key] = params[key] * 0.0
     params.update()
     np.testing.assert_allclose(mi_nest.render(gridded_scene).channels["char.delta"], 0.0, atol=1e-6)
+
+
+def test_saved_files_are_readable_like_normal_files(tmp_path):
+    import os
+    import stat
+    from mi_nest.io.exr import write_channels
+    from mi_nest.io.mesh import save_mesh_stress
+    grid, _ = sampled_grid(TwistedField())
+    save_stress_grid(tmp_path / "g.npz", grid)
+    save_mesh_stress(tmp_path / "m.npz", np.zeros((4, 3)), [[0, 1, 2, 3]], np.zeros((4, 6)))
+    write_channels(tmp_path / "c.exr", {"Y": np.zeros((2, 2))})
+    umask = os.umask(0)
+    os.umask(umask)
+    for name in ("g.npz", "m.npz", "c.exr"):
+        assert stat.S_IMODE(os.stat(tmp_path / name).st_mode) == 0o666 & ~umask, name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.exr", "g.npz", "m.npz"]   # no temp files left

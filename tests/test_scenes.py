@@ -7,7 +7,7 @@ from mi_nest.plugins.photoelastic import CHANNELS
 
 SHIPPED = sorted(p.stem for p in mi_nest.scene_path("disk_compression").parent.glob("*.xml"))
 # Scenes that take more than a second or two to load or render at 16x16.
-SLOW = {"kitten"}
+SLOW = {"kitten", "square_hole_disk"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW else n for n in SHIPPED])

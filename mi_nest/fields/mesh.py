@@ -4,8 +4,8 @@ Within each tetrahedron the stress is the barycentric (linear) interpolation of
 its four nodal tensors. For rendering, :meth:`TetMeshStress.to_grid` resamples
 that interpolation onto a regular grid for :class:`~mi_nest.fields.grid.GridField`
 (trilinear texture lookups are what a ray march can afford per step); grid
-nodes outside the mesh take the nearest node's stress so that interpolation at
-the boundary does not blend in zeros.
+nodes outside the mesh take the value of the nearest grid node inside it, so
+that interpolation at the boundary does not blend in zeros.
 """
 from __future__ import annotations
 
@@ -127,14 +127,25 @@ class TetMeshStress:
         axes = [np.linspace(lo[i], hi[i], counts[i]) for i in range(3)]
         z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
         points = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
-        values = self.sample(points)
-        outside = np.isnan(values[:, 0])
-        if np.any(outside):
-            from scipy.spatial import cKDTree
-            _, nearest = cKDTree(self.nodes).query(points[outside])
-            values[outside] = self.stress[nearest]
-        stress = values.reshape(counts[2], counts[1], counts[0], 6).astype(np.float32)
+        values = self.sample(points).reshape(counts[2], counts[1], counts[0], 6)
+        stress = fill_from_nearest(values, ~np.isnan(values[..., 0])).astype(np.float32)
         return StressGrid(stress, lo, hi)
+
+
+def fill_from_nearest(values, known):
+    """``values`` (Z, Y, X, C) with every node outside ``known`` copied from the nearest known node.
+
+    A Euclidean distance transform on the grid itself: iterative C code, so it
+    also runs on the small stacks of Mitsuba's scene-loading worker threads
+    (a k-d tree query there has crashed the process).
+    """
+    if known.all():
+        return values
+    if not known.any():
+        raise MeshError("no grid node lies inside the mesh: the grid is too coarse for it")
+    from scipy.ndimage import distance_transform_edt
+    nearest = distance_transform_edt(~known, return_distances=False, return_indices=True)
+    return values[tuple(nearest)]
 
 
 def _positively_oriented(nodes, tets):

@@ -69,17 +69,18 @@ class CartesianGrid:
 
     def grid_stress(self):
         """Nodal stress on the full grid as (Z, Y, X, 6), y ascending; empty nodes take the nearest node."""
-        from scipy.spatial import cKDTree
+        from ..fields.mesh import fill_from_nearest
         nelx, nely, nelz = self.cells
-        every = np.arange((nelx + 1) * (nely + 1) * (nelz + 1))
-        values = np.zeros((len(every), 6), np.float32)
+        count = (nelx + 1) * (nely + 1) * (nelz + 1)
+        values = np.zeros((count, 6), np.float32)
         values[self.node_ids] = self.stress
-        empty = np.setdiff1d(every, self.node_ids)
-        if len(empty):
-            _, nearest = cKDTree(self.node_coordinates(self.node_ids)).query(self.node_coordinates(empty))
-            values[empty] = self.stress[nearest]
-        # Node id order is (y fastest, then x, then z) with y descending.
-        return values.reshape(nelz + 1, nelx + 1, nely + 1, 6).transpose(0, 2, 1, 3)[:, ::-1]
+        known = np.zeros(count, bool)
+        known[self.node_ids] = True
+
+        def on_grid(array):
+            # Node id order is (y fastest, then x, then z) with y descending.
+            return array.reshape(nelz + 1, nelx + 1, nely + 1, -1).transpose(0, 2, 1, 3)[:, ::-1]
+        return fill_from_nearest(on_grid(values), on_grid(known[:, None])[..., 0])
 
 
 def read_carti_file(path) -> CartesianGrid:

@@ -1,12 +1,12 @@
 """Multichannel EXR files addressed by channel name (OpenEXR does not keep channel order)."""
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
+
+from .atomic import atomic_path
 
 
 class ExrFileError(ValueError):
@@ -28,17 +28,9 @@ def write_channels(path, channels: dict, metadata: dict | None = None, half: boo
     pixels = {name: np.ascontiguousarray(a, dtype=dtype) for name, a in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     header.update({key: str(value) for key, value in (metadata or {}).items()})
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".exr", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, pixels) as exr:
             exr.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def read_channels(path, names=None) -> dict:

@@ -5,13 +5,13 @@ nodes: node (0, 0, 0) at ``bbox_min``, the last node at ``bbox_max``.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .atomic import atomic_path
 
 
 class GridFileError(ValueError):
@@ -66,12 +66,5 @@ def load_stress_grid(path) -> StressGrid:
 
 def save_stress_grid(path, grid: StressGrid):
     """Write atomically (temp file + rename) so a crash never leaves half a grid."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent or ".")
-    os.close(fd)
-    try:
+    with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, stress=grid.stress, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise

@@ -1,27 +1,17 @@
 """Stress on a mesh as ``.npz``: ``nodes`` (N, 3) mm, ``cells`` (M, 4 | 8) 0-based, ``stress`` (N, 6) MPa."""
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
-
 import numpy as np
 
+from .atomic import atomic_path
 from .grid import GridFileError
 
 
 def save_mesh_stress(path, nodes, cells, stress):
     """Write atomically (temp file + rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent or ".")
-    os.close(fd)
-    try:
+    with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, nodes=np.asarray(nodes, np.float64), cells=np.asarray(cells, np.int64),
                             stress=np.asarray(stress, np.float32))
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
 
 
 def is_mesh_npz(files):
