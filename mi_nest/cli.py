@@ -42,9 +42,23 @@ def _parser():
     export.add_argument("--resolution", type=int, default=64,
                         help="grid nodes along the longest axis when sampling (default: 64)")
 
-    fem = commands.add_parser("fem", help="solve a linear-elastic FEM model and write its nodal stress (.npz)")
-    fem.add_argument("--spec", required=True,
-                     help="model file (.toml or .json): geometry, material, loads, fixtures, element order")
+    fem = commands.add_parser(
+        "fem", help="solve a linear-elastic FEM model and write its nodal stress (.npz)",
+        description="Either --spec FILE (TOML/JSON: geometry, material, loads, fixtures), or a MESH "
+                    "(a volume mesh meshio reads, or a closed surface meshed with the gmsh extra) with "
+                    "--fix/--load/--pressure. WHERE is x=<v>, y=<v>, z=<v> (a plane) or a surface group "
+                    "name of the mesh file.")
+    fem.add_argument("mesh", nargs="?", help="volume mesh or closed surface file")
+    fem.add_argument("--spec", help="model file (.toml or .json)")
+    fem.add_argument("--fix", action="append", default=[], metavar="WHERE[:xyz]",
+                     help="clamp the faces in WHERE (optionally only some components); repeatable")
+    fem.add_argument("--load", action="append", default=[], metavar="WHERE:FX,FY,FZ",
+                     help="total force (N) spread over the faces in WHERE; repeatable")
+    fem.add_argument("--pressure", action="append", default=[], metavar="WHERE:P",
+                     help="pressure (MPa, positive pushes in) on the faces in WHERE; repeatable")
+    fem.add_argument("--material", default="3000,0.37", metavar="E,NU",
+                     help="Young's modulus (MPa) and Poisson's ratio (default: epoxy 3000,0.37)")
+    fem.add_argument("--element-size", type=float, help="mesh size (mm) when meshing a surface")
     fem.add_argument("-o", "--output", required=True, help="output mesh stress .npz (a specimen's filename)")
     fem.add_argument("--order", type=int, choices=(1, 2), help="element order (overrides the spec)")
 
@@ -90,16 +104,28 @@ def _export(field, output, defines, resolution):
         print(f"wrote {path.resolve()}")
 
 
-def _fem(spec_file, output, order=None):
+def _fem(args):
     import dataclasses
-    from .fem import load_spec
-    spec = load_spec(spec_file)
-    if order is not None:
-        spec = dataclasses.replace(spec, element_order=order)
+    from .fem import FemError, load_spec, spec_from_flags
+    if (args.spec is None) == (args.mesh is None):
+        raise FemError("give either --spec FILE or a MESH with --fix/--load/--pressure")
+    if args.spec is not None:
+        spec = load_spec(args.spec)
+    else:
+        try:
+            material = tuple(float(v) for v in args.material.split(","))
+        except ValueError:
+            material = ()
+        if len(material) != 2:
+            raise FemError(f"--material: expected E,NU, got '{args.material}'")
+        spec = spec_from_flags(args.mesh, args.fix, args.load, args.pressure, material, args.order or 1,
+                               args.element_size)
+    if args.order is not None:
+        spec = dataclasses.replace(spec, element_order=args.order)
     result = spec.run()
-    result.save(output)
+    result.save(args.output)
     print(result.summary())
-    print(f"wrote {Path(output).resolve()} ({result.report.nodes} nodes, {result.report.tets} tets)")
+    print(f"wrote {Path(args.output).resolve()} ({result.report.nodes} nodes, {result.report.tets} tets)")
 
 
 def main(argv=None):
@@ -113,7 +139,7 @@ def main(argv=None):
         elif args.command == "export":
             _export(args.field, args.output, args.defines, args.resolution)
         elif args.command == "fem":
-            _fem(args.spec, args.output, args.order)
+            _fem(args)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):

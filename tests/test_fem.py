@@ -402,3 +402,44 @@ def test_a_50k_tet_p1_model_solves_well_under_a_minute():
     seconds = time.perf_counter() - start
     print(f"{mesh.nelements} tets, {result.report.dofs} dofs: {seconds:.1f} s")
     assert seconds < 30.0 and abs(disk_centre_error(result)) < 0.05
+
+
+def _bar_with_named_ends(path, length=40.0, side=10.0):
+    """A tetrahedral bar along x written as Abaqus .inp with surface sets 'left' and 'right'."""
+    import meshio
+    from skfem import MeshTet
+    mesh = MeshTet.init_tensor(np.linspace(0, length, 9), np.linspace(0, side, 3), np.linspace(0, side, 3))
+    facets = mesh.boundary_facets()
+    corners = mesh.p[0, mesh.facets[:, facets]]
+    triangles = mesh.facets[:, facets].T
+    left, right = np.all(corners < 1e-9, axis=0), np.all(corners > length - 1e-9, axis=0)
+    meshio.Mesh(mesh.p.T, [("tetra", mesh.t.T), ("triangle", triangles)],
+                cell_sets={"left": [np.array([], int), np.nonzero(left)[0]],
+                           "right": [np.array([], int), np.nonzero(right)[0]]}).write(path)
+
+
+def test_cli_flags_solve_a_mesh_file_with_named_surface_groups(tmp_path, capsys):
+    from mi_nest.cli import main
+    from mi_nest.fields.sources import load_mesh
+    bar = tmp_path / "bar.inp"
+    _bar_with_named_ends(bar)
+    output = tmp_path / "bar.npz"
+    # Clamp the left group, pull the right group along x: far from the clamp sigma_xx = F / A.
+    assert main(["fem", str(bar), "--fix", "left", "--load", "right:500,0,0", "-o", str(output)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    field = load_mesh(output)
+    middle = np.abs(field.nodes[:, 0] - 20.0) < 1e-9
+    np.testing.assert_allclose(field.stress[middle, 0], 500.0 / 100.0, rtol=0.03)
+    # A plane selects the same face; roller supports on three planes leave pure tension.
+    assert main(["fem", str(bar), "--fix", "x=0:x", "--fix", "y=0:y", "--fix", "z=0:z",
+                 "--load", "x=40:500,0,0", "-o", str(output)]) == 0
+    np.testing.assert_allclose(load_mesh(output).stress[:, 0], 5.0, rtol=1e-6)
+    capsys.readouterr()
+    assert main(["fem", str(bar), "--fix", "bottom", "--load", "right:1,0,0", "-o", str(output)]) == 2
+    assert "no surface group 'bottom'; it has ['left', 'right']" in capsys.readouterr().err
+    assert main(["fem", str(bar), "--load", "right:1,0,0", "-o", str(output)]) == 2
+    assert "no fixture, so it can move as a rigid body" in capsys.readouterr().err
+    assert main(["fem", str(bar), "--fix", "left", "--load", "right:1,0", "-o", str(output)]) == 2
+    assert "expected 3 comma-separated numbers" in capsys.readouterr().err
+    assert main(["fem", "--fix", "left", "-o", str(output)]) == 2
+    assert "either --spec FILE or a MESH" in capsys.readouterr().err

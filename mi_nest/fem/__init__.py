@@ -9,11 +9,12 @@ from .config import FemError
 from .loads import Fixture, PointForce, Pressure, SurfaceForce, Traction, check_rigid_modes, rigid_body_modes
 from .meshing import (BoxGeometry, CylinderGeometry, MeshFileGeometry, TubeGeometry, mesh_surface,
                       read_volume_mesh)
-from .regions import Box, CylindricalSurface, NearestNode, Plane, Predicate, Sphere
+from .regions import Box, CylindricalSurface, Group, NearestNode, Plane, Predicate, Sphere
 from .solve import FemResult, Material, SolveReport, SolverConfig, solve
-from .spec import FemSpec, load_spec
+from .spec import FemSpec, load_spec, spec_from_flags
 
 __all__ = ["FemError", "Fixture", "PointForce", "Pressure", "SurfaceForce", "Traction", "check_rigid_modes",
            "rigid_body_modes", "BoxGeometry", "CylinderGeometry", "MeshFileGeometry", "TubeGeometry",
-           "mesh_surface", "read_volume_mesh", "Box", "CylindricalSurface", "NearestNode", "Plane", "Predicate",
-           "Sphere", "FemResult", "Material", "SolveReport", "SolverConfig", "solve", "FemSpec", "load_spec"]
+           "mesh_surface", "read_volume_mesh", "Box", "CylindricalSurface", "Group", "NearestNode", "Plane", "Predicate",
+           "Sphere", "FemResult", "Material", "SolveReport", "SolverConfig", "solve", "FemSpec", "load_spec",
+           "spec_from_flags"]

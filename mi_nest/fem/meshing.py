@@ -110,7 +110,7 @@ def extrude(points, triangles, height, layers):
     return nodes, np.concatenate(tets)
 
 
-def _to_skfem(nodes, tets):
+def _to_skfem(nodes, tets, surface_groups=None):
     from skfem import MeshTet
     used, tets = np.unique(tets, return_inverse=True)         # drop nodes no tetrahedron uses
     tets = tets.reshape(-1, 4)
@@ -122,7 +122,33 @@ def _to_skfem(nodes, tets):
     if np.any(np.abs(volume) <= 1e-12 * extent ** 3):
         raise FemError(f"the mesh has {int(np.sum(np.abs(volume) <= 1e-12 * extent ** 3))} degenerate "
                        f"(zero-volume) tetrahedra")
-    return MeshTet(np.ascontiguousarray(nodes.T), np.ascontiguousarray(tets.T.astype(np.int64)))
+    mesh = MeshTet(np.ascontiguousarray(nodes.T), np.ascontiguousarray(tets.T.astype(np.int64)))
+    if surface_groups:
+        mesh = mesh.with_boundaries({name: _facets_of(mesh, used, triangles, name)
+                                     for name, triangles in surface_groups.items()})
+    return mesh
+
+
+def _facets_of(mesh, used, triangles, name):
+    """Facet indices of ``mesh`` for triangles given by original node ids."""
+    position = np.searchsorted(used, triangles)
+    if np.any(position >= len(used)) or np.any(used[np.minimum(position, len(used) - 1)] != triangles):
+        raise FemError(f"surface group '{name}' uses nodes of no tetrahedron")
+    count = np.int64(mesh.p.shape[1])
+
+    def key(corners):
+        corners = np.sort(corners, axis=-1).astype(np.int64)
+        return (corners[..., 0] * count + corners[..., 1]) * count + corners[..., 2]
+    facet_keys = key(mesh.facets.T)
+    order = np.argsort(facet_keys)
+    wanted = key(position)
+    found = np.searchsorted(facet_keys[order], wanted)
+    found = np.minimum(found, len(order) - 1)
+    matched = facet_keys[order][found] == wanted
+    if not np.all(matched):
+        raise FemError(f"surface group '{name}': {int(np.sum(~matched))} of its triangles are not faces "
+                       "of the tetrahedra")
+    return np.unique(order[found])
 
 
 # Right-handed placements of a local frame whose z is the cylinder axis.
@@ -270,7 +296,22 @@ def read_volume_mesh(path):
         kinds = sorted({block.type for block in data.cells})
         raise FemError(f"{path}: no tetrahedra in the file (cells: {', '.join(kinds) or 'none'}); "
                        f"surface meshes need a surface suffix ({', '.join(SURFACE_SUFFIXES)}) and gmsh")
-    return _to_skfem(data.points[:, :3], np.concatenate(tets))
+    try:
+        return _to_skfem(data.points[:, :3], np.concatenate(tets), _surface_groups(data))
+    except FemError as error:
+        raise FemError(f"{path}: {error}") from None
+
+
+def _surface_groups(data):
+    """Named sets of boundary triangles (meshio ``cell_sets``: gmsh physical groups, Abaqus sets)."""
+    groups = {}
+    for name, per_block in data.cell_sets.items():
+        triangles = [block.data[np.asarray(indices, dtype=np.int64)][:, :3]
+                     for block, indices in zip(data.cells, per_block)
+                     if block.type in ("triangle", "triangle6") and len(indices)]
+        if triangles:
+            groups[name] = np.concatenate(triangles)
+    return groups
 
 
 def require_gmsh():

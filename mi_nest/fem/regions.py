@@ -151,19 +151,38 @@ class Predicate:
         return self.label
 
 
+@dataclass(frozen=True)
+class Group:
+    """A named surface group of the mesh file (a gmsh physical surface, an Abaqus set...)."""
+    name: str
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise FemError(f"a surface group needs a non-empty 'name', got {self.name!r}")
+
+    def describe(self):
+        return f"surface group '{self.name}'"
+
+
 REGIONS = {"plane": Plane, "box": Box, "sphere": Sphere, "cylindrical_surface": CylindricalSurface,
-           "point": NearestNode}
+           "point": NearestNode, "group": Group}
 
 
 def parse_region(data, where):
     """A region from its dict form, e.g. ``{"type": "plane", "point": [0, 0, 10], "normal": [0, 0, 1]}``."""
-    if isinstance(data, (Plane, Box, Sphere, CylindricalSurface, NearestNode, Predicate)):
+    if isinstance(data, (Plane, Box, Sphere, CylindricalSurface, NearestNode, Predicate, Group)):
         return data
     return parse_typed(REGIONS, data, where)
 
 
 def boundary_facets_in(mesh, region):
-    """Indices of the boundary facets of ``mesh`` whose corners all lie in ``region``."""
+    """Indices of the boundary facets of ``mesh`` whose corners all lie in ``region`` (or in its group)."""
+    if isinstance(region, Group):
+        groups = mesh.boundaries or {}
+        if region.name not in groups:
+            raise FemError(f"the mesh has no surface group '{region.name}'; it has "
+                           f"{sorted(groups) if groups else 'none (only mesh files carry named groups)'}")
+        return np.intersect1d(groups[region.name], mesh.boundary_facets())
     facets = mesh.boundary_facets()
     corners = mesh.p[:, mesh.facets[:, facets]]               # (3, 3 corners, F)
     inside = region.contains(corners.reshape(3, -1).T).reshape(3, -1)

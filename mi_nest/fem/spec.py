@@ -29,7 +29,8 @@ Example (TOML; lengths mm, forces N, stresses MPa)::
 
 Regions (``where``): ``plane`` (point, normal, tolerance), ``box`` (min, max),
 ``sphere`` (center, radius), ``cylindrical_surface`` (radius, center, axis,
-tolerance), ``point`` (the nearest boundary node).
+tolerance), ``point`` (the nearest boundary node), ``group`` (name: a named
+surface of a mesh file, e.g. a gmsh physical surface).
 """
 from __future__ import annotations
 
@@ -114,3 +115,62 @@ def load_spec(path):
         return FemSpec.from_dict(data, base=path.parent)
     except FemError as error:
         raise FemError(f"{path}: {error}") from None
+
+
+def parse_where(text):
+    """``x=V`` / ``y=V`` / ``z=V`` (an axis-aligned plane) or a surface group name."""
+    from .regions import Group, Plane
+    axis, sep, value = text.partition("=")
+    if sep and axis in ("x", "y", "z"):
+        try:
+            offset = float(value)
+        except ValueError:
+            raise FemError(f"'{text}': expected {axis}=<number>") from None
+        point = [0.0, 0.0, 0.0]
+        normal = [0.0, 0.0, 0.0]
+        point["xyz".index(axis)] = offset
+        normal["xyz".index(axis)] = 1.0
+        return Plane(tuple(point), tuple(normal))
+    if sep:
+        raise FemError(f"'{text}': a plane is x=<v>, y=<v> or z=<v>; anything else names a surface group")
+    return Group(text)
+
+
+def spec_from_flags(mesh, fixes, loads=(), pressures=(), material=(3000.0, 0.37), element_order=1,
+                    element_size=None):
+    """A :class:`FemSpec` from command-line style strings.
+
+    ``fixes``: ``WHERE`` or ``WHERE:xz`` (the clamped components); ``loads``:
+    ``WHERE:FX,FY,FZ`` (total force in N spread over the faces); ``pressures``:
+    ``WHERE:P`` (MPa, positive pushes in). ``material`` is (E in MPa, nu).
+    """
+    from .loads import Fixture, Pressure, SurfaceForce
+
+    def split(text, what):
+        where, sep, value = text.rpartition(":")
+        if not sep or not where:
+            raise FemError(f"{what} '{text}': expected WHERE:VALUE")
+        return parse_where(where), value
+
+    def numbers(text, count, what):
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count:
+            raise FemError(f"{what}: expected {count} comma-separated numbers, got '{text}'")
+        return values
+
+    fixtures = []
+    for index, text in enumerate(fixes):
+        where, components = (split(text, "--fix") if ":" in text else (parse_where(text), "xyz"))
+        if not components or set(components) - set("xyz"):
+            raise FemError(f"--fix '{text}': components must be letters among x, y, z")
+        fixtures.append(Fixture(f"fix {index + 1} ({text})", where, tuple(sorted(set(components)))))
+    applied = [SurfaceForce(f"load {i + 1} ({t})", split(t, "--load")[0], numbers(split(t, "--load")[1], 3, t))
+               for i, t in enumerate(loads)]
+    applied += [Pressure(f"pressure {i + 1} ({t})", split(t, "--pressure")[0],
+                         numbers(split(t, "--pressure")[1], 1, t)[0]) for i, t in enumerate(pressures)]
+    youngs_modulus, poisson_ratio = material
+    return FemSpec(MeshFileGeometry(str(mesh), element_size), Material(youngs_modulus, poisson_ratio),
+                   tuple(fixtures), tuple(applied), element_order)
