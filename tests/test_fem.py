@@ -11,7 +11,8 @@ import trimesh
 import mi_nest
 from mi_nest.cli import main
 from mi_nest.fem import (BoxGeometry, CylinderGeometry, FemError, FemSpec, Material, Predicate, SolverConfig,
-                         TubeGeometry, load_spec, mesh_surface, read_volume_mesh, rigid_body_modes, solve)
+                         MeshFileGeometry, TubeGeometry, load_spec, mesh_surface, read_volume_mesh,
+                         rigid_body_modes, solve)
 from mi_nest.fem.meshing import require_gmsh
 from mi_nest.fem.solve import scalar_basis, stiffness
 from mi_nest.fields.analytic import DiskCompressionField, LameCylinderField
@@ -443,3 +444,14 @@ def test_cli_flags_solve_a_mesh_file_with_named_surface_groups(tmp_path, capsys)
     assert "expected 3 comma-separated numbers" in capsys.readouterr().err
     assert main(["fem", "--fix", "left", "-o", str(output)]) == 2
     assert "either --spec FILE or a MESH" in capsys.readouterr().err
+
+
+def test_a_surface_that_is_not_closed_is_refused_before_meshing(tmp_path):
+    import trimesh
+    box = trimesh.creation.box(extents=(4, 4, 4))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[2:], process=False)
+    with pytest.raises(FemError, match="not closed \\(watertight\\)"):
+        mesh_surface(open_box)
+    open_box.export(tmp_path / "open.stl")
+    with pytest.raises(FemError, match="not closed \\(watertight\\)"):
+        MeshFileGeometry(str(tmp_path / "open.stl")).mesh()

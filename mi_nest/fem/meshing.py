@@ -332,7 +332,6 @@ def mesh_surface(surface, element_size=None):
     patches at sharp edges first, so flat faces stay flat).
     """
     import trimesh
-    gmsh = require_gmsh()
     if not isinstance(surface, trimesh.Trimesh):
         loaded = trimesh.load(surface, force="mesh")
         if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
@@ -340,6 +339,7 @@ def mesh_surface(surface, element_size=None):
         surface = loaded
     if not surface.is_watertight:
         raise FemError("the surface is not closed (watertight), so it bounds no volume to mesh")
+    gmsh = require_gmsh()
     size = element_size or float(np.linalg.norm(np.ptp(surface.vertices, axis=0))) / 20.0
     with tempfile.TemporaryDirectory() as folder:
         stl = Path(folder) / "surface.stl"
