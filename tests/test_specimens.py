@@ -200,3 +200,16 @@ def test_carti_grid_orientation_order_and_rendering(tmp_path):
     (tmp_path / "cut.carti").write_text("\n".join((tmp_path / "l.carti").read_text().splitlines()[:-5]))
     with pytest.raises(TsvFileError, match="ends early"):
         read_carti_file(tmp_path / "cut.carti")
+
+
+CUBE = KITTEN.parent / "ansys_cube.stress"
+
+
+@pytest.mark.skipif(not CUBE.is_file(), reason="shared 3D-TSV samples not beside the checkout")
+def test_the_ansys_cube_sample_imports_with_a_closed_boundary():
+    model = read_stress_file(CUBE)
+    assert model.vertices.shape == (68921, 3) and model.elements.shape == (64000, 8)
+    assert model.node_forces.shape == (1681, 4) and model.fixed_nodes.shape == (1681,)
+    mesh = model.mesh()
+    surface = trimesh.Trimesh(mesh.nodes, mesh.surface, process=False)
+    assert surface.is_watertight and surface.volume == pytest.approx(np.prod(np.ptp(mesh.nodes, axis=0)), rel=1e-6)
