@@ -187,6 +187,15 @@ class BoxGeometry:
         return MeshTet.init_tensor(*axes)
 
 
+def _validate_placement(geometry):
+    """Check and normalise the ``center``, ``axis`` and ``element_size`` of a round primitive."""
+    object.__setattr__(geometry, "center", vector("center", geometry.center))
+    if geometry.axis not in _AXIS_PERMUTATION:
+        raise FemError(f"'axis' must be 'x', 'y' or 'z', got {geometry.axis!r}")
+    if geometry.element_size is not None:
+        object.__setattr__(geometry, "element_size", number("element_size", geometry.element_size, positive=True))
+
+
 @dataclass(frozen=True)
 class CylinderGeometry:
     """Solid cylinder (a disk when thin) of ``radius`` and ``height`` about ``axis`` through ``center``.
@@ -202,11 +211,7 @@ class CylinderGeometry:
     def __post_init__(self):
         object.__setattr__(self, "radius", number("radius", self.radius, positive=True))
         object.__setattr__(self, "height", number("height", self.height, positive=True))
-        object.__setattr__(self, "center", vector("center", self.center))
-        if self.axis not in _AXIS_PERMUTATION:
-            raise FemError(f"'axis' must be 'x', 'y' or 'z', got {self.axis!r}")
-        if self.element_size is not None:
-            object.__setattr__(self, "element_size", number("element_size", self.element_size, positive=True))
+        _validate_placement(self)
 
     def mesh(self):
         h = self.element_size or max(self.radius / 5.0, self.height / 10.0)
@@ -231,11 +236,7 @@ class TubeGeometry:
         if self.inner_radius >= self.outer_radius:
             raise FemError(f"'inner_radius' ({self.inner_radius:g}) must be smaller than "
                            f"'outer_radius' ({self.outer_radius:g})")
-        object.__setattr__(self, "center", vector("center", self.center))
-        if self.axis not in _AXIS_PERMUTATION:
-            raise FemError(f"'axis' must be 'x', 'y' or 'z', got {self.axis!r}")
-        if self.element_size is not None:
-            object.__setattr__(self, "element_size", number("element_size", self.element_size, positive=True))
+        _validate_placement(self)
 
     def mesh(self):
         wall = self.outer_radius - self.inner_radius
