@@ -45,7 +45,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     follows the light from the ``polariscope_light`` panel to the camera through
     every shape whose interior is a ``stress`` medium, entering and leaving as
     often as the geometry requires (entry where the ray meets the outside of a
-    surface, exit at the next crossing), and multiplies the exact exponential
+    surface, exit at the next crossing; specimens may touch face to face, but
+    not nest), and multiplies the exact exponential
     of each constant-stress step as an SU(2) quaternion, renormalised at every
     step. Any other shape is opaque.
 
@@ -154,14 +155,17 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         while active:
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
             hit = si.is_valid()
-            # The chord between hit points, not the spawned ray's t (its origin is offset).
-            segment = self.march(medium, origin, d, dr.norm(si.p - origin), coefficients, sampler, setup,
-                                 active & hit & (medium != 0))
-            q = su2.multiply(q, segment)
             hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
                                    dr.reinterpret_array(mi.UInt32, si.shape), hit)
-            blocked |= hit & (hit_medium == 0)
             entering = dr.dot(si.n, d) < 0
+            # Leaving a specimen proves the segment was inside it, even if its entry face was
+            # skipped for coinciding with the face just left (specimens glued face to face).
+            inside = dr.select(hit & ~entering & (hit_medium != 0), hit_medium, medium)
+            # The chord between hit points, not the spawned ray's t (its origin is offset).
+            segment = self.march(inside, origin, d, dr.norm(si.p - origin), coefficients, sampler, setup,
+                                 active & hit & (inside != 0))
+            q = su2.multiply(q, segment)
+            blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
             ray = mi.Ray3f(_past_surface(si, d), d)

@@ -217,3 +217,16 @@ def test_direct_pixel_sums_match_mitsubas_film_splatting(spp):
     assert fast.shape == generic.shape == (6, 6, 24)
     np.testing.assert_allclose(fast, generic, atol=1e-6)
     assert fast[..., 0].std() > 0.01   # the box edges and jitter make pixels differ
+
+
+@pytest.mark.parametrize("order", ["front_first", "back_first"])
+def test_specimens_sharing_a_face_are_both_traversed(order):
+    """Two slabs glued face to face (coincident surfaces): the light crosses both."""
+    first = box((20, 20, 2), center=(0, 0, 1), interior=medium(xx=1.5))        # z in [0, 2]
+    second = box((20, 20, 3), center=(0, 0, -1.5), interior=medium(xy=0.8))    # z in [-3, 0]
+    shapes = [first, second] if order == "front_first" else [second, first]
+    channels = render(shapes, step=0.5)
+    # Light (travelling +z) crosses the second slab, then the first: J = J_first J_second.
+    expected = su2.multiply(su2.step(1.5, 0.0, PHASE_RATE * 2.0), su2.step(0.0, 1.6, PHASE_RATE * 3.0))
+    for name, value in zip(("jones.a", "jones.b", "jones.c", "jones.d"), expected):
+        np.testing.assert_allclose(channels[name], value, atol=2e-5, err_msg=name)
