@@ -24,7 +24,7 @@ def box(size, center=(0.0, 0.0, 0.0), interior=None):
 
 def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, output_qwp=None,
           analyzer=0.0, origin=(0.0, 0.0, 100.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0),
-          projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified"):
+          projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified", **integrator):
     """A photoelastic scene; the default camera looks down -z (image right +x, up +y)."""
     light = {"type": "polariscope_light", "polarizer": polarizer}
     if input_qwp is not None:
@@ -45,7 +45,7 @@ def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, 
     if output_qwp is not None:
         sensor["qwp"] = output_qwp
     description = {"type": "scene", "embree_use_robust_intersections": True,
-                   "integrator": {"type": "photoelastic", "step_size": step, "jitter": jitter},
+                   "integrator": {"type": "photoelastic", "step_size": step, "jitter": jitter, **integrator},
                    "light": light, "sensor": sensor}
     for index, shape in enumerate(shapes):
         description[f"specimen_{index}"] = shape

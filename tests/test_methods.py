@@ -1,0 +1,67 @@
+"""Models of the ordered exponential (PHYSICS.md section 4): orders, exactness, unitarity, failure."""
+import math
+
+import numpy as np
+import pytest
+
+from mi_nest.physics import su2
+from scenes import BREWSTER, WAVELENGTH, box, medium, render
+from test_render import twisted_closed_form
+
+PHASE_RATE = math.pi * BREWSTER / WAVELENGTH
+TWIST = dict(amplitude=0.6, rate=9.0, angle=30.0)
+DEPTH = 20.0
+
+
+def jones_error(method, steps, **options):
+    field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
+    channels = render([box((30, 30, DEPTH), interior=field)], res=2, step=DEPTH / steps * (1 + 1e-6),
+                      method=method, **options)
+    expected = twisted_closed_form(TWIST["amplitude"], TWIST["rate"], TWIST["angle"], DEPTH)
+    return max(float(np.max(np.abs(channels[f"jones.{c}"] - value))) for c, value in zip("abcd", expected))
+
+
+@pytest.mark.parametrize("method, options, order, steps", [
+    ("product", {"points": "left"}, 1, (16, 32)),
+    ("product", {}, 2, (16, 32)),
+    ("magnus4", {}, 4, (8, 16)),
+    ("rk4", {}, 4, (8, 16)),
+])
+def test_observed_order_of_convergence_on_the_twisted_field(method, options, order, steps):
+    coarse, fine = (jones_error(method, n, **options) for n in steps)
+    observed = math.log2(coarse / fine)
+    assert abs(observed - order) < 0.35, (coarse, fine, observed)
+
+
+def test_linear_model_is_exact_when_steps_commute_and_wrong_when_axes_turn():
+    uniform = render([box((20, 20, 5), interior=medium(xx=2.0, yy=-0.5, xy=0.7))], res=2, step=5.0,
+                     method="linear")
+    expected = su2.step(2.5, 1.4, PHASE_RATE * 5.0)
+    for c, value in zip("abcd", expected):
+        np.testing.assert_allclose(uniform[f"jones.{c}"], value, atol=2e-6)
+    assert jones_error("linear", 256) > 0.1      # no rotator term: the twisted field defeats it
+    assert jones_error("product", 256) < 1e-3
+
+
+def test_magnus4_stays_unitary_and_rk4_amplifies_by_its_stability_polynomial():
+    thickness, steps = 4.0, 4
+    for phase_per_step in (0.5, 2.0, 3.5):                 # RK4 is stable below 2 sqrt(2) = 2.83
+        sxx = phase_per_step * steps / (PHASE_RATE * thickness)
+        shapes = [box((20, 20, thickness), interior=medium(xx=sxx))]
+        rk4 = render(shapes, res=2, step=thickness / steps * (1 + 1e-6), method="rk4")
+        magnus = render(shapes, res=2, step=thickness / steps * (1 + 1e-6), method="magnus4")
+        x = phase_per_step
+        amplification = (1 - x * x / 2 + x ** 4 / 24) ** 2 + (1 - x * x / 6) ** 2 * x * x
+        rk4_norm = sum(rk4[f"jones.{c}"] ** 2 for c in "abcd")
+        np.testing.assert_allclose(rk4_norm, amplification ** steps, rtol=1e-4)
+        np.testing.assert_allclose(sum(magnus[f"jones.{c}"] ** 2 for c in "abcd"), 1.0, atol=1e-5)
+    assert amplification ** steps > 10      # past the threshold RK4 blows up
+
+
+def test_unknown_method_or_points_are_refused():
+    with pytest.raises(Exception, match="unknown method 'euler'"):
+        render([box((2, 2, 2), interior=medium(xx=1.0))], method="euler")
+    with pytest.raises(Exception, match="unknown points 'right'"):
+        render([box((2, 2, 2), interior=medium(xx=1.0))], points="right")
+    with pytest.raises(Exception, match="'points' applies to method 'product' only"):
+        render([box((2, 2, 2), interior=medium(xx=1.0))], method="rk4", points="left")
