@@ -43,6 +43,7 @@ def test_linear_model_is_exact_when_steps_commute_and_wrong_when_axes_turn():
     assert jones_error("product", 256) < 1e-3
 
 
+@pytest.mark.filterwarnings("ignore:photoelastic. rk4 is not unitary")
 def test_magnus4_stays_unitary_and_rk4_amplifies_by_its_stability_polynomial():
     thickness, steps = 4.0, 4
     for phase_per_step in (0.5, 2.0, 3.5):                 # RK4 is stable below 2 sqrt(2) = 2.83
@@ -65,3 +66,21 @@ def test_unknown_method_or_points_are_refused():
         render([box((2, 2, 2), interior=medium(xx=1.0))], points="right")
     with pytest.raises(Exception, match="'points' applies to method 'product' only"):
         render([box((2, 2, 2), interior=medium(xx=1.0))], method="rk4", points="left")
+
+
+def test_rk4_warns_when_it_loses_unitarity_and_stays_quiet_when_accurate():
+    import warnings
+    thickness, steps = 4.0, 4
+    for phase_per_step, warns in ((0.3, False), (2.0, True), (3.5, True)):
+        sxx = phase_per_step * steps / (PHASE_RATE * thickness)
+        shapes = [box((20, 20, thickness), interior=medium(xx=sxx))]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            render(shapes, res=2, step=thickness / steps * (1 + 1e-6), method="rk4")
+        messages = [str(w.message) for w in caught if "rk4 is not unitary" in str(w.message)]
+        assert bool(messages) == warns, (phase_per_step, messages)
+        if warns:
+            assert "2 sqrt(2) = 2.83" in messages[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")     # the unitary methods never warn
+        render([box((20, 20, 4), interior=medium(xx=50.0))], res=2, step=1.0, method="magnus4")
