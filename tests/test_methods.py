@@ -84,3 +84,15 @@ def test_rk4_warns_when_it_loses_unitarity_and_stays_quiet_when_accurate():
     with warnings.catch_warnings():
         warnings.simplefilter("error")     # the unitary methods never warn
         render([box((20, 20, 4), interior=medium(xx=50.0))], res=2, step=1.0, method="magnus4")
+
+
+def test_float32_products_of_a_hundred_thousand_steps_stay_unitary_and_exact():
+    thickness, steps = 50.0, 100_000
+    channels = render([box((20, 20, thickness), interior=medium(xx=0.8, xy=-0.3))], res=2,
+                      step=thickness / steps * (1 + 1e-6))
+    norm = sum(channels[f"jones.{c}"] ** 2 for c in "abcd")
+    assert np.max(np.abs(norm - 1.0)) < 1e-5
+    expected = su2.step(0.8, -0.6, PHASE_RATE * thickness)
+    for c, value in zip("abcd", expected):
+        np.testing.assert_allclose(channels[f"jones.{c}"], value, atol=1e-4)
+
