@@ -17,7 +17,9 @@ _GAUSS = (0.5 + 3.0 ** 0.5 / 6.0, 0.5 - 3.0 ** 0.5 / 6.0)
 
 JONES_CHANNELS = ("jones.a", "jones.b", "jones.c", "jones.d")
 CHARACTERISTIC_CHANNELS = ("char.delta", "char.theta", "char.gamma")
-CHANNELS = JONES_CHANNELS + CHARACTERISTIC_CHANNELS + tuple(MEASUREMENTS)
+# Total length (mm) of each ray's path inside specimens: a thickness map.
+PATH_CHANNELS = ("path.length",)
+CHANNELS = JONES_CHANNELS + CHARACTERISTIC_CHANNELS + tuple(MEASUREMENTS) + PATH_CHANNELS
 
 
 class SceneSetupError(ValueError):
@@ -74,8 +76,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     The film receives the intensity of the scene's polariscope as its main
     channel (``Y``) and, as named channels, the Jones product
     ``jones.a/b/c/d``, its characteristic parameters ``char.delta``,
-    ``char.theta``, ``char.gamma`` (radians) and the 16 normalised intensities
-    ``pol.<b1>.<b2>.<a2>`` of the multi-axis polariscope.
+    ``char.theta``, ``char.gamma`` (radians), the 16 normalised intensities
+    ``pol.<b1>.<b2>.<a2>`` of the multi-axis polariscope and ``path.length``,
+    the length (mm) of the ray's path inside specimens.
 
     .. tabs::
 
@@ -165,7 +168,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if mode != dr.ADMode.Primal:
             raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
         setup = self._setup
-        q, blocked = self.trace(scene, sampler, ray, setup, active)
+        q, blocked, length = self.trace(scene, sampler, ray, setup, active)
         q = tuple(dr.select(blocked, 0.0, x) for x in q)
         if self.method == "rk4":
             # The only method that is not unitary: measure how far it drifted (read after the render).
@@ -174,12 +177,13 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         radiance = setup.radiance
         aovs = list(q) + [delta, theta, gamma]
         aovs += [radiance * scope.intensity(q) for scope in MEASUREMENTS.values()]
+        aovs.append(length)
         main = radiance * setup.polariscope.intensity(q)
         return mi.Spectrum(main), mi.Bool(True), aovs, None
 
     @dr.syntax
     def trace(self, scene, sampler, ray, setup, active):
-        """Jones quaternion of each ray, and whether an opaque shape blocks it."""
+        """Jones quaternion of each ray, whether an opaque shape blocks it, and its length inside specimens."""
         d = mi.Vector3f(ray.d)
         coefficients = setup.projection_coefficients(d)
         ray = mi.Ray3f(ray)
@@ -187,6 +191,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         q = self.accumulate_start()
         medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
         blocked = mi.Bool(False)
+        length = mi.Float(0)
         crossings = mi.UInt32(0)
         active = mi.Bool(active)
 
@@ -200,8 +205,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             # skipped for coinciding with the face just left (specimens glued face to face).
             inside = dr.select(hit & ~entering & (hit_medium != 0), hit_medium, medium)
             # The chord between hit points, not the spawned ray's t (its origin is offset).
-            segment = self.march(inside, origin, d, dr.norm(si.p - origin), coefficients, sampler, setup,
-                                 active & hit & (inside != 0))
+            chord = dr.norm(si.p - origin)
+            marched = active & hit & (inside != 0)
+            segment = self.march(inside, origin, d, chord, coefficients, sampler, setup, marched)
+            length += dr.select(marched, chord, 0.0)
             q = self.accumulate(q, segment)
             blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
@@ -209,7 +216,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             ray = mi.Ray3f(_past_surface(si, d), d)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
-        return self.finish(q), blocked
+        return self.finish(q), blocked, length
 
     def accumulate_start(self):
         zero = mi.Float(0)
