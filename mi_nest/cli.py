@@ -62,6 +62,14 @@ def _parser():
     fem.add_argument("-o", "--output", required=True, help="output mesh stress .npz (a specimen's filename)")
     fem.add_argument("--order", type=int, choices=(1, 2), help="element order (overrides the spec)")
 
+    bench = commands.add_parser("bench", help="benchmarks")
+    bench_kind = bench.add_subparsers(dest="bench", required=True)
+    accuracy = bench_kind.add_parser("accuracy", help="speed against accuracy of the integration methods")
+    accuracy.add_argument("--scenes", help="comma-separated cases (default: all of disk, twisted, stacked, "
+                                           "kitten, dense)")
+    accuracy.add_argument("--res", type=int, default=256, help="image resolution (default: 256)")
+    accuracy.add_argument("-o", "--output-dir", default="mi_nest_out/bench", help="where the CSV and PNG go")
+
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
 
@@ -128,6 +136,16 @@ def _fem(args):
     print(f"wrote {Path(args.output).resolve()} ({result.report.nodes} nodes, {result.report.tets} tets)")
 
 
+def _bench_accuracy(scenes, res, output_dir):
+    from .bench import CASES, run_accuracy, write_results
+    names = tuple(scenes.split(",")) if scenes else tuple(CASES)
+    unknown = [n for n in names if n not in CASES]
+    if unknown:
+        raise ValueError(f"unknown bench case(s) {unknown}; available: {sorted(CASES)}")
+    for path in write_results(run_accuracy(names, res), output_dir):
+        print(f"wrote {Path(path).resolve()}")
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     try:
@@ -140,6 +158,8 @@ def main(argv=None):
             _export(args.field, args.output, args.defines, args.resolution)
         elif args.command == "fem":
             _fem(args)
+        elif args.command == "bench":
+            _bench_accuracy(args.scenes, args.res, args.output_dir)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
