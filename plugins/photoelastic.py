@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import logging
 import math
 
 import drjit as dr
@@ -7,9 +8,10 @@ import mitsuba as mi
 import numpy as np
 
 from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
+from mi_nest.physics import steps as steps_analysis
 
 # Models of the ordered exponential along a ray (PHYSICS.md section 4).
-METHODS = ("product", "linear", "magnus4", "rk4")
+METHODS = ("product", "linear", "magnus4", "rk4", "auto")
 # Where ``product`` samples each step: its midpoint (second order) or its start (first order).
 POINTS = {"midpoint": 0.5, "left": 0.0}
 # Gauss-Legendre points of Magnus-4 within a step, the first one met by the light first.
@@ -52,7 +54,16 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
          along the ray, exponentiate once: exact only when the steps commute),
          ``magnus4`` (two Gauss points per step plus the commutator; fourth
          order, unitary) or ``rk4`` (Runge-Kutta on the ODE; fourth order, not
-         unitary). (Default: ``product``)
+         unitary) or ``auto`` (see ``tolerance``). (Default: ``product``)
+
+     * - tolerance
+       - |float|
+       - For ``auto``: the largest error of the 16 normalised intensities to aim
+         for. ``auto`` samples the field along the light before each render: where
+         the principal axes never turn along the rays the steps commute and it
+         uses ``linear`` (one step per chord for a field constant along the rays);
+         otherwise ``magnus4`` with a step derived from the retardance per mm and
+         the axis rotation rate. It logs its choice and why. (Default: 1e-3)
 
      * - points
        - |string|
@@ -104,11 +115,16 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             raise ValueError(f"photoelastic: unknown points '{self.points}'; choose one of {tuple(POINTS)}")
         if self.method != "product" and "points" in props:
             raise ValueError("photoelastic: 'points' applies to method 'product' only")
+        self.tolerance = float(props.get("tolerance", 1e-3))
+        if not (math.isfinite(self.tolerance) and self.tolerance > 0):
+            raise ValueError(f"photoelastic: 'tolerance' must be positive, got {self.tolerance}")
+        self.auto_choice = None
         self.max_crossings = int(props.get("max_crossings", 64))
         if self.max_crossings < 2:
             raise ValueError(f"photoelastic: 'max_crossings' must be at least 2, got {self.max_crossings}")
         self._setup = None
         self._norm_error = None
+        self._method, self._step = self.method, self.step_size
 
     def aov_names(self):
         return list(CHANNELS)
@@ -127,6 +143,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
         self._setup = self.check_scene(scene, sensor)
+        self._method, self._step = self.method, self.step_size
+        if self.method == "auto":
+            self._method, self._step, self.auto_choice = _choose_method(self._setup, scene, sensor, self.tolerance)
+            logging.getLogger("mi_nest").info(self.auto_choice)
         try:
             if not _sums_pixels_directly(sensor.film()):
                 image = super().render(scene, sensor, seed, spp, develop, evaluate)
@@ -135,7 +155,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             else:
                 image = self._render_pixel_sums(scene, sensor, seed, spp)
             if self._norm_error is not None:
-                _warn_if_not_unitary(float(self._norm_error[0]), self.step_size)
+                _warn_if_not_unitary(float(self._norm_error[0]), self._step)
             return image
         finally:
             self._setup = None
@@ -170,7 +190,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         setup = self._setup
         q, blocked, length = self.trace(scene, sampler, ray, setup, active)
         q = tuple(dr.select(blocked, 0.0, x) for x in q)
-        if self.method == "rk4":
+        if self._method == "rk4":
             # The only method that is not unitary: measure how far it drifted (read after the render).
             self._norm_error = dr.max(dr.select(blocked, 0.0, dr.abs(su2.norm_squared(q) - 1.0)))
         delta, theta, gamma = su2.characteristic_parameters(q)
@@ -220,27 +240,27 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def accumulate_start(self):
         zero = mi.Float(0)
-        return (zero, zero, zero, zero) if self.method == "linear" else su2.identity(zero)
+        return (zero, zero, zero, zero) if self._method == "linear" else su2.identity(zero)
 
     def accumulate(self, q, segment):
         """Combine a segment's result with the ray's so far: a product, or for ``linear`` a sum."""
-        if dr.hint(self.method == "linear", mode="scalar"):
+        if dr.hint(self._method == "linear", mode="scalar"):
             return tuple(x + y for x, y in zip(q, segment))
         return su2.multiply(q, segment)
 
     def finish(self, q):
         """The Jones quaternion from the accumulated state (``linear``: one exponential of the sum)."""
-        if dr.hint(self.method == "linear", mode="scalar"):
+        if dr.hint(self._method == "linear", mode="scalar"):
             return su2.exponential(q)
         return q
 
     def march(self, medium, origin, d, chord, coefficients, sampler, setup, active):
         """The segment ``origin + t d``, t in [0, chord], inside ``medium``, with the chosen method."""
-        steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self.step_size), 1), 0))
+        steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self._step), 1), 0))
         h = chord / mi.Float(dr.maximum(steps, 1))
-        if self.method == "rk4":
+        if self._method == "rk4":
             return self.march_rk4(steps, h, medium, origin, d, coefficients, setup)
-        if self.method == "linear":
+        if self._method == "linear":
             return self.march_linear(steps, h, medium, origin, d, coefficients, sampler, setup)
         return self.march_chains(steps, h, medium, origin, d, coefficients, sampler, setup)
 
@@ -270,7 +290,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def step(self, index, steps, medium, origin, d, h, coefficients, sampler, setup):
         """Propagator of step ``index`` of length ``h`` (zero length past ``steps``)."""
         length = dr.select(index < steps, h, 0.0)
-        if self.method == "magnus4":
+        if self._method == "magnus4":
             # Gauss points in light order: the farther one from the camera first.
             first, second = (self.generator_at(dr.fma(d, (mi.Float(index) + g) * h, origin), medium,
                                                coefficients, setup) for g in _GAUSS)
@@ -334,6 +354,55 @@ def _warn_if_not_unitary(norm_error, step_size):
             f"{step_size:g} mm). RK4 shrinks |J|^2 by about x^6/72 per step and blows up when the phase x "
             f"per step exceeds 2 sqrt(2) = 2.83 rad; use a smaller step_size, or 'product'/'magnus4'",
             RuntimeWarning, stacklevel=2)
+
+
+# Lines across each specimen and samples along each line for the ``auto`` analysis.
+_AUTO_LINES, _AUTO_SAMPLES = 12, 65
+
+
+def _choose_method(setup, scene, sensor, tolerance):
+    """``(method, step_size, reason)`` for ``auto``, from the fields sampled along the light."""
+    to_world = sensor.world_transform()
+    k = -np.array(dr.normalize(to_world @ mi.Vector3f(0, 0, 1))).ravel()    # light travels towards the camera
+    u = np.array(setup._right).ravel()
+    u = u - (u @ k) * k
+    u /= np.linalg.norm(u)
+    v = np.cross(k, u)
+    rates = []
+    for shape in scene.shapes():
+        medium = shape.interior_medium()
+        if medium is None or not hasattr(medium, "stress"):
+            continue
+        box = shape.bbox()
+        corners = np.array([[x, y, z] for x in (box.min.x, box.max.x) for y in (box.min.y, box.max.y)
+                            for z in (box.min.z, box.max.z)], dtype=np.float64)
+        span = [(corners @ axis).min() for axis in (u, v, k)], [(corners @ axis).max() for axis in (u, v, k)]
+        a, b = (np.linspace(lo, hi, _AUTO_LINES + 2)[1:-1] for lo, hi in zip(span[0][:2], span[1][:2]))
+        s = np.linspace(span[0][2], span[1][2], _AUTO_SAMPLES)
+        grid_a, grid_b, grid_s = np.meshgrid(a, b, s, indexing="ij")
+        points = grid_a[..., None] * u + grid_b[..., None] * v + grid_s[..., None] * k
+        flat = points.reshape(-1, 3).astype(np.float32)
+        stress = medium.stress(mi.Point3f(*(mi.Float(flat[:, i]) for i in range(3))))
+        stress = tuple(np.broadcast_to(np.array(c, dtype=np.float64), (len(flat),)) for c in stress)
+        p, q = projection.project(stress, tuple(u), tuple(v))
+        lines = (_AUTO_LINES * _AUTO_LINES, _AUTO_SAMPLES)
+        rates.append(steps_analysis.analyse_lines(medium.phase_rate * p.reshape(lines),
+                                                  medium.phase_rate * q.reshape(lines), s[1] - s[0]))
+    commuting = all(r.commuting for r in rates)
+    combined = steps_analysis.FieldRates(
+        commuting, max(r.retardance_rate for r in rates), max(r.rotation_rate for r in rates),
+        max(r.path_length for r in rates), max(r.curvature for r in rates))
+    if commuting:
+        step = steps_analysis.linear_step(combined, tolerance)
+        return "linear", step, (
+            f"photoelastic auto: the principal axes do not turn along the light in any specimen, so the steps "
+            f"commute and the linear model is exact; step {step:.3g} mm for the summed stress "
+            f"(retardance up to {combined.retardance_rate:.3g} rad/mm)")
+    step = steps_analysis.magnus4_step(combined, tolerance)
+    return "magnus4", step, (
+        f"photoelastic auto: the principal axes turn along the light (up to {combined.rotation_rate:.3g} rad/mm, "
+        f"retardance up to {combined.retardance_rate:.3g} rad/mm), so the linear model would be wrong; magnus4 "
+        f"with step {step:.3g} mm for an error below {tolerance:g}")
 
 
 def _axpy(a, x, y):

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from mi_nest.physics import su2
+from mi_nest.physics import MEASUREMENTS, su2
 from scenes import BREWSTER, WAVELENGTH, box, medium, render
 from test_render import twisted_closed_form
 
@@ -96,3 +96,46 @@ def test_float32_products_of_a_hundred_thousand_steps_stay_unitary_and_exact():
     for c, value in zip("abcd", expected):
         np.testing.assert_allclose(channels[f"jones.{c}"], value, atol=1e-4)
 
+
+
+def _auto(shapes, tolerance, **options):
+    import mi_nest
+    from scenes import scene
+    scene_ = scene(shapes, method="auto", tolerance=tolerance, **options)
+    channels = mi_nest.render(scene_).channels
+    integrator = scene_.integrator()
+    return channels, integrator._method, integrator._step, integrator.auto_choice
+
+
+def test_auto_picks_the_exact_linear_model_where_steps_commute():
+    import mi_nest
+    disk_mesh = str(mi_nest.scene_path("disk_compression").parent / "meshes/disk.ply")
+    import mitsuba as mi
+    disk = {"type": "ply", "filename": disk_mesh, "to_world": mi.ScalarTransform4f().scale([40, 40, 6]),
+            "interior": {"type": "stress", "fringe_value": 10.6, "model": "disk_compression", "diameter": 40.0,
+                         "thickness": 6.0, "load": 300.0}}
+    channels, method, step, reason = _auto([disk], 1e-3, res=16, view=22.0, step=0.1)
+    assert method == "linear" and step >= 6.0 and "commute" in reason
+    reference = render([disk], res=16, view=22.0, step=0.1, method="product")
+    assert max(float(np.max(np.abs(channels[n] - reference[n]))) for n in MEASUREMENTS) < 1e-4
+
+
+@pytest.mark.parametrize("tolerance", [1e-3, 1e-4])
+def test_auto_meets_its_tolerance_where_axes_turn(tolerance):
+    field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
+    channels, method, step, reason = _auto([box((30, 30, DEPTH), interior=field)], tolerance, res=2)
+    assert method == "magnus4" and "turn" in reason and step < DEPTH
+    expected = twisted_closed_form(TWIST["amplitude"], TWIST["rate"], TWIST["angle"], DEPTH)
+    errors = [float(np.max(np.abs(channels[n] - scope.intensity(expected)))) for n, scope in MEASUREMENTS.items()]
+    assert max(errors) <= tolerance
+    # ... and it does not over-refine by much: twice the step would miss the tolerance.
+    coarser = jones_error("magnus4", max(1, int(DEPTH / (2 * step))))
+    assert coarser > tolerance / 16
+
+
+def test_auto_never_picks_the_linear_model_for_stacked_disks():
+    import mi_nest
+    scene_ = mi_nest.load_scene("stacked_disks", res=8, spp=1)
+    scene_.integrator().method = "auto"
+    mi_nest.render(scene_)
+    assert scene_.integrator()._method == "magnus4"
