@@ -33,7 +33,9 @@ def load_scene(path, **defaults):
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
     try:
-        return mi.load_file(str(path), **{k: str(v) for k, v in defaults.items()})
+        # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
+        # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.
+        return mi.load_file(str(path), parallel=False, **{k: str(v) for k, v in defaults.items()})
     except Exception as error:
         raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
 
