@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import mitsuba as mi
 import numpy as np
 
 from .io.grid import StressGrid
@@ -20,7 +19,7 @@ def specimen_grids(scene, resolution=64):
     grids = []
     for shape in scene.shapes():
         medium = shape.interior_medium()
-        if medium is None or not hasattr(medium, "stress"):
+        if medium is None or not hasattr(medium, "sample"):
             continue
         box = shape.bbox()
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
@@ -28,9 +27,7 @@ def specimen_grids(scene, resolution=64):
         counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
         axes = [np.linspace(lo[i], hi[i], counts[i]) for i in range(3)]
         z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-        points = mi.Point3f(*(mi.Float(a.ravel().astype(np.float32)) for a in (x, y, z)))
-        values = np.stack([np.broadcast_to(np.array(c, dtype=np.float32), (points.x.shape[0],))
-                           for c in medium.stress(points)], axis=-1)
+        values = medium.sample(np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1))
         grids.append(StressGrid(values.reshape(*z.shape, 6), lo, hi))
     return grids
 

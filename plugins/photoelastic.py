@@ -371,7 +371,7 @@ def _choose_method(setup, scene, sensor, tolerance):
     rates = []
     for shape in scene.shapes():
         medium = shape.interior_medium()
-        if medium is None or not hasattr(medium, "stress"):
+        if medium is None or not hasattr(medium, "sample"):
             continue
         box = shape.bbox()
         corners = np.array([[x, y, z] for x in (box.min.x, box.max.x) for y in (box.min.y, box.max.y)
@@ -381,10 +381,7 @@ def _choose_method(setup, scene, sensor, tolerance):
         s = np.linspace(span[0][2], span[1][2], _AUTO_SAMPLES)
         grid_a, grid_b, grid_s = np.meshgrid(a, b, s, indexing="ij")
         points = grid_a[..., None] * u + grid_b[..., None] * v + grid_s[..., None] * k
-        flat = points.reshape(-1, 3).astype(np.float32)
-        stress = medium.stress(mi.Point3f(*(mi.Float(flat[:, i]) for i in range(3))))
-        stress = tuple(np.broadcast_to(np.array(c, dtype=np.float64), (len(flat),)) for c in stress)
-        p, q = projection.project(stress, tuple(u), tuple(v))
+        p, q = projection.project(tuple(medium.sample(points).T), tuple(u), tuple(v))
         lines = (_AUTO_LINES * _AUTO_LINES, _AUTO_SAMPLES)
         rates.append(steps_analysis.analyse_lines(medium.phase_rate * p.reshape(lines),
                                                   medium.phase_rate * q.reshape(lines), s[1] - s[0]))

@@ -95,6 +95,13 @@ class StressMedium(mi.Medium):
         """Stress tensor (MPa, 3D-TSV 6-tuple) at points ``p`` (mm)."""
         return self.field.eval(p)
 
+    def sample(self, points):
+        """Stress (MPa) at NumPy points ``(N, 3)`` (mm) as an ``(N, 6)`` NumPy array."""
+        import numpy as np
+        points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        stress = self.stress(mi.Point3f(*(mi.Float(points[:, i]) for i in range(3))))
+        return np.stack([np.broadcast_to(np.array(c, dtype=np.float64), (len(points),)) for c in stress], axis=-1)
+
     def phase_tensor(self, p):
         """``pi C / lambda`` times the stress: phase per mm of the step generator."""
         return tuple(self.phase_rate * s for s in self.field.eval(p))
