@@ -39,7 +39,17 @@ def mesh_arrays(path):
 
 
 def load_mesh(path) -> TetMeshStress:
-    """The mesh of a 3D-TSV ``.stress`` file or of a mesh ``.npz`` (FEM result)."""
+    """The mesh of a 3D-TSV ``.stress``/``.carti`` file or of a mesh ``.npz`` (FEM result).
+
+    Cached by path and modification time: a ``specimen`` shape and its medium build it once.
+    """
+    path = Path(path)
+    stat = os.stat(path)
+    return _mesh_cached(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=8)
+def _mesh_cached(path, mtime_ns, size):
     return TetMeshStress.from_cells(*mesh_arrays(path))
 
 
@@ -48,7 +58,7 @@ def export_vtu(path, output, resolution=64):
     from ..io.vtk import write_grid_vtu, write_mesh_vtu
     if Path(path).is_file() and is_mesh_file(path):
         nodes, cells, stress = mesh_arrays(path)
-        load_mesh(path)   # validates the mesh before writing it out
+        TetMeshStress.from_cells(nodes, cells, stress)   # validates the mesh before writing it out
         write_mesh_vtu(output, nodes, cells, stress)
         return f"{len(nodes)} nodes, {len(cells)} cells"
     grid = grid_from_file(path, resolution)
