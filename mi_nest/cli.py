@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import warnings
 from pathlib import Path
 
 DEFAULT_SCENE = "disk_compression"
@@ -146,8 +147,13 @@ def _bench_accuracy(scenes, res, output_dir):
         print(f"wrote {Path(path).resolve()}")
 
 
+def _format_warning(message, category, filename, lineno, line=None):
+    return f"mi-nest: warning: {message}\n"
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
+    formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
         if args.command == "render":
             _render(args.scene, args.output, args.defines, png=args.png, spp=args.spp, seed=args.seed,
@@ -167,6 +173,8 @@ def main(argv=None):
     except (ValueError, OSError) as error:
         print(f"mi-nest: error: {error}", file=sys.stderr)
         return 2
+    finally:
+        warnings.formatwarning = formatwarning
     return 0
 
 

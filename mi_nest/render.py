@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -53,6 +54,7 @@ class RenderResult:
     channels: dict
     seconds: float
     metadata: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)  # what the integrator warned about, once each
 
     @property
     def main(self):
@@ -93,19 +95,25 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
         bar = tqdm(total=passes, desc="render", unit="pass", leave=False)
     start = time.perf_counter()
     total = None
-    for index in range(passes):
-        try:
-            image = mi.render(scene, spp=spp // passes, seed=seed * passes + index).numpy()
-        except Exception:
-            # mi.render reports only "error while performing a custom differentiable
-            # operation"; checking the scene raises the cause when the scene is at fault.
-            integrator.check_scene(scene, sensor)
-            raise
-        total = image if total is None else total + image
-        if bar is not None:
-            bar.update()
+    # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for index in range(passes):
+            try:
+                image = mi.render(scene, spp=spp // passes, seed=seed * passes + index).numpy()
+            except Exception:
+                # mi.render reports only "error while performing a custom differentiable
+                # operation"; checking the scene raises the cause when the scene is at fault.
+                integrator.check_scene(scene, sensor)
+                raise
+            total = image if total is None else total + image
+            if bar is not None:
+                bar.update()
     if bar is not None:
         bar.close()
+    last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
+    for w in last_of_kind.values():
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     seconds = time.perf_counter() - start
     if passes > 1:
         total /= passes
@@ -114,7 +122,8 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     channels = {name: total[..., index] for index, name in enumerate(names)}
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
                 "mi_nest.integrator": integrator.class_name()}
-    return RenderResult(channels=channels, seconds=seconds, metadata=metadata)
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata,
+                        warnings=[str(w.message) for w in last_of_kind.values()])
 
 
 def _channel_names(film, count):

@@ -7,21 +7,22 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
+from mi_nest.physics import MEASUREMENTS, Polariscope, aliasing, projection, su2
 from mi_nest.physics import steps as steps_analysis
 
 # Models of the ordered exponential along a ray (PHYSICS.md section 4).
 METHODS = ("product", "linear", "magnus4", "rk4", "auto")
 # Where ``product`` samples each step: its midpoint (second order) or its start (first order).
 POINTS = {"midpoint": 0.5, "left": 0.0}
-# Gauss-Legendre points of Magnus-4 within a step, the first one met by the light first.
-_GAUSS = (0.5 + 3.0 ** 0.5 / 6.0, 0.5 - 3.0 ** 0.5 / 6.0)
 
 JONES_CHANNELS = ("jones.a", "jones.b", "jones.c", "jones.d")
 CHARACTERISTIC_CHANNELS = ("char.delta", "char.theta", "char.gamma")
+# Unwrapped fringe order of the linear model, |sum of the step generators| / pi: exact
+# where the axes do not turn along the ray, and what the aliasing guard differentiates.
+FRINGE_CHANNELS = ("fringe.order",)
 # Total length (mm) of each ray's path inside specimens: a thickness map.
 PATH_CHANNELS = ("path.length",)
-CHANNELS = JONES_CHANNELS + CHARACTERISTIC_CHANNELS + tuple(MEASUREMENTS) + PATH_CHANNELS
+CHANNELS = JONES_CHANNELS + CHARACTERISTIC_CHANNELS + tuple(MEASUREMENTS) + FRINGE_CHANNELS + PATH_CHANNELS
 
 
 class SceneSetupError(ValueError):
@@ -59,11 +60,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
      * - tolerance
        - |float|
        - For ``auto``: the largest error of the 16 normalised intensities to aim
-         for. ``auto`` samples the field along the light before each render: where
-         the principal axes never turn along the rays the steps commute and it
-         uses ``linear`` (one step per chord for a field constant along the rays);
-         otherwise ``magnus4`` with a step derived from the retardance per mm and
-         the axis rotation rate. It logs its choice and why. (Default: 1e-3)
+         for. ``auto`` samples the field inside the specimens along the light
+         before each render: where the principal axes never turn along the rays
+         the steps commute and it uses ``linear`` (one step per chord for a field
+         constant along the rays); otherwise ``magnus4`` with the longest step
+         that step doubling on the hardest sampled chords finds within
+         ``tolerance``. It logs its choice and why. (Default: 1e-3)
 
      * - points
        - |string|
@@ -88,8 +90,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     channel (``Y``) and, as named channels, the Jones product
     ``jones.a/b/c/d``, its characteristic parameters ``char.delta``,
     ``char.theta``, ``char.gamma`` (radians), the 16 normalised intensities
-    ``pol.<b1>.<b2>.<a2>`` of the multi-axis polariscope and ``path.length``,
-    the length (mm) of the ray's path inside specimens.
+    ``pol.<b1>.<b2>.<a2>`` of the multi-axis polariscope, ``fringe.order`` (the
+    linear model's unwrapped fringe order: exact where the axes do not turn
+    along the ray) and ``path.length``, the length (mm) of the ray's path
+    inside specimens. After each render it measures the fringe density from
+    ``fringe.order`` and warns where fringes are denser than the pixel grid
+    (``integrator.aliasing`` keeps the report).
 
     .. tabs::
 
@@ -119,6 +125,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if not (math.isfinite(self.tolerance) and self.tolerance > 0):
             raise ValueError(f"photoelastic: 'tolerance' must be positive, got {self.tolerance}")
         self.auto_choice = None
+        self.aliasing = None
         self.max_crossings = int(props.get("max_crossings", 64))
         if self.max_crossings < 2:
             raise ValueError(f"photoelastic: 'max_crossings' must be at least 2, got {self.max_crossings}")
@@ -156,6 +163,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 image = self._render_pixel_sums(scene, sensor, seed, spp)
             if self._norm_error is not None:
                 _warn_if_not_unitary(float(self._norm_error[0]), self._step)
+            if develop and isinstance(image, mi.TensorXf):
+                self.aliasing = _check_aliasing(image)
             return image
         finally:
             self._setup = None
@@ -188,7 +197,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if mode != dr.ADMode.Primal:
             raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
         setup = self._setup
-        q, blocked, length = self.trace(scene, sampler, ray, setup, active)
+        q, fringe, blocked, length = self.trace(scene, sampler, ray, setup, active)
         q = tuple(dr.select(blocked, 0.0, x) for x in q)
         if self._method == "rk4":
             # The only method that is not unitary: measure how far it drifted (read after the render).
@@ -197,18 +206,21 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         radiance = setup.radiance
         aovs = list(q) + [delta, theta, gamma]
         aovs += [radiance * scope.intensity(q) for scope in MEASUREMENTS.values()]
+        aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
         main = radiance * setup.polariscope.intensity(q)
         return mi.Spectrum(main), mi.Bool(True), aovs, None
 
     @dr.syntax
     def trace(self, scene, sampler, ray, setup, active):
-        """Jones quaternion of each ray, whether an opaque shape blocks it, and its length inside specimens."""
+        """Per ray: the Jones quaternion, the summed generator ``(b, c)`` (the linear model's), whether
+        an opaque shape blocks it, and its length inside specimens."""
         d = mi.Vector3f(ray.d)
         coefficients = setup.projection_coefficients(d)
         ray = mi.Ray3f(ray)
         origin = mi.Point3f(ray.o)
         q = self.accumulate_start()
+        fringe = (mi.Float(0), mi.Float(0))
         medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
         blocked = mi.Bool(False)
         length = mi.Float(0)
@@ -227,16 +239,17 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             # The chord between hit points, not the spawned ray's t (its origin is offset).
             chord = dr.norm(si.p - origin)
             marched = active & hit & (inside != 0)
-            segment = self.march(inside, origin, d, chord, coefficients, sampler, setup, marched)
+            segment, segment_fringe = self.march(inside, origin, d, chord, coefficients, sampler, setup, marched)
             length += dr.select(marched, chord, 0.0)
             q = self.accumulate(q, segment)
+            fringe = _add(fringe, segment_fringe)
             blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
             ray = mi.Ray3f(_past_surface(si, d), d)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
-        return self.finish(q), blocked, length
+        return self.finish(q), fringe, blocked, length
 
     def accumulate_start(self):
         zero = mi.Float(0)
@@ -278,27 +291,33 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         half = (steps + 1) // 2
         front = su2.identity(mi.Float(0))
         back = su2.identity(mi.Float(0))
+        fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
         while i < half:
-            front = su2.multiply_renormalized(front, self.step(i, steps, medium, origin, d, h, coefficients,
-                                                               sampler, setup))
-            back = su2.multiply_renormalized(back, self.step(i + half, steps, medium, origin, d, h,
-                                                             coefficients, sampler, setup))
+            front_step, front_fringe = self.step(i, steps, medium, origin, d, h, coefficients, sampler, setup)
+            back_step, back_fringe = self.step(i + half, steps, medium, origin, d, h, coefficients, sampler, setup)
+            front = su2.multiply_renormalized(front, front_step)
+            back = su2.multiply_renormalized(back, back_step)
+            fringe = _add(fringe, _add(front_fringe, back_fringe))
             i += 1
-        return su2.multiply(front, back)
+        return su2.multiply(front, back), fringe
 
     def step(self, index, steps, medium, origin, d, h, coefficients, sampler, setup):
-        """Propagator of step ``index`` of length ``h`` (zero length past ``steps``)."""
+        """Propagator of step ``index`` of length ``h`` (zero length past ``steps``) and the
+        ``(b, c)`` part of its mean generator times ``h``."""
         length = dr.select(index < steps, h, 0.0)
         if self._method == "magnus4":
             # Gauss points in light order: the farther one from the camera first.
             first, second = (self.generator_at(dr.fma(d, (mi.Float(index) + g) * h, origin), medium,
-                                               coefficients, setup) for g in _GAUSS)
-            return su2.magnus4(first, second, length)
+                                               coefficients, setup) for g in steps_analysis.GAUSS_POINTS)
+            half = 0.5 * length
+            return su2.magnus4(first, second, length), (half * (first[1] + second[1]),
+                                                        half * (first[2] + second[2]))
         offset = sampler.next_1d() if self.jitter else mi.Float(POINTS[self.points])
         p = dr.fma(d, (mi.Float(index) + offset) * h, origin)
         p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
-        return su2.step(p_diff, q_diff, length)
+        generator = su2.generator(p_diff, q_diff, length)
+        return su2.exponential(generator), generator[1:3]
 
     def generator_at(self, p, medium, coefficients, setup):
         """The propagation generator per unit length at ``p`` (a pure quaternion)."""
@@ -318,7 +337,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                                           coefficients, setup)
             total = _axpy(h, generator, total)
             i += 1
-        return total
+        return total, total[1:3]
 
     @dr.syntax
     def march_rk4(self, steps, h, medium, origin, d, coefficients, setup):
@@ -328,6 +347,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         phase ``x`` per step: it damps below ``x = 2 sqrt(2)`` and blows up above.
         """
         k = su2.identity(mi.Float(0))
+        fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
         while i < steps:
             t = mi.Float(i) * h
@@ -338,8 +358,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             k3 = su2.multiply(_axpy(0.5 * h, k2, k), am)
             k4 = su2.multiply(_axpy(h, k3, k), a1)
             k = _axpy(h / 6.0, _rk4_slope(k1, k2, k3, k4), k)
+            fringe = _axpy(h, am[1:3], fringe)
             i += 1
-        return k
+        return k, fringe
 
 
 # |J|^2 may drift this far from 1 before rk4 results are reported as unreliable.
@@ -356,8 +377,30 @@ def _warn_if_not_unitary(norm_error, step_size):
             RuntimeWarning, stacklevel=2)
 
 
+# Share of a specimen's pixels that may alias before a render warns: contact points and
+# notches are stress singularities, dense beyond any resolution in a few pixels.
+ALIASED_FRACTION = 0.01
+
+
+def _check_aliasing(image):
+    """Measure the fringe density of a developed image; warn if the intensities alias."""
+    first = image.shape[-1] - len(CHANNELS)
+    order, length = (np.array(image[..., first + CHANNELS.index(name)]) for name in ("fringe.order", "path.length"))
+    report = aliasing.fringe_aliasing(order, length > 0)
+    if report.fraction > ALIASED_FRACTION:
+        import warnings
+        warnings.warn(f"photoelastic: {report.describe()}: the intensities alias there. Render at "
+                      f"{report.resolution_factor}x the resolution, or supersample (spp) to average the "
+                      "fringes within each pixel as a camera does", RuntimeWarning, stacklevel=3)
+    return report
+
+
 # Lines across each specimen and samples along each line for the ``auto`` analysis.
-_AUTO_LINES, _AUTO_SAMPLES = 12, 65
+_AUTO_LINES, _AUTO_SAMPLES = 32, 65
+# Of those lines, how many are marched at halving steps to estimate the magnus4 error.
+_AUTO_CHORDS = 64
+# Crossings followed per analysis line, and the step when no line meets a specimen.
+_AUTO_MAX_CROSSINGS, _AUTO_FALLBACK_STEP = 64, 1.0
 
 
 def _choose_method(setup, scene, sensor, tolerance):
@@ -368,7 +411,7 @@ def _choose_method(setup, scene, sensor, tolerance):
     u = u - (u @ k) * k
     u /= np.linalg.norm(u)
     v = np.cross(k, u)
-    rates = []
+    rates, chords = [], []
     for shape in scene.shapes():
         medium = shape.interior_medium()
         if medium is None or not hasattr(medium, "sample"):
@@ -381,10 +424,19 @@ def _choose_method(setup, scene, sensor, tolerance):
         s = np.linspace(span[0][2], span[1][2], _AUTO_SAMPLES)
         grid_a, grid_b, grid_s = np.meshgrid(a, b, s, indexing="ij")
         points = grid_a[..., None] * u + grid_b[..., None] * v + grid_s[..., None] * k
-        p, q = projection.project(tuple(medium.sample(points).T), tuple(u), tuple(v))
-        lines = (_AUTO_LINES * _AUTO_LINES, _AUTO_SAMPLES)
-        rates.append(steps_analysis.analyse_lines(medium.phase_rate * p.reshape(lines),
-                                                  medium.phase_rate * q.reshape(lines), s[1] - s[0]))
+        starts = points[:, :, 0].reshape(-1, 3)
+        crossings = _crossings_along_lines(scene, shape, starts, k)
+        inside = (crossings[:, :, None] < (s - s[0])[None, None, :]).sum(axis=0) % 2 == 1
+        if not inside.any():
+            continue
+        generator = _generator_sampler(medium, u, v)
+        p, q = generator(points.reshape(inside.shape + (3,)))
+        rates.append(steps_analysis.analyse_lines(p, q, s[1] - s[0], inside))
+        hardest = steps_analysis.hardest_lines(p, q, inside, _AUTO_CHORDS)
+        chords.append((generator, *_chords(starts[hardest], k, crossings[:, hardest])))
+    if not rates:
+        return "linear", _AUTO_FALLBACK_STEP, ("photoelastic auto: no analysis line crossed a specimen; "
+                                               "linear model")
     commuting = all(r.commuting for r in rates)
     combined = steps_analysis.FieldRates(
         commuting, max(r.retardance_rate for r in rates), max(r.rotation_rate for r in rates),
@@ -395,11 +447,66 @@ def _choose_method(setup, scene, sensor, tolerance):
             f"photoelastic auto: the principal axes do not turn along the light in any specimen, so the steps "
             f"commute and the linear model is exact; step {step:.3g} mm for the summed stress "
             f"(retardance up to {combined.retardance_rate:.3g} rad/mm)")
-    step = steps_analysis.magnus4_step(combined, tolerance)
+    # Step doubling on the chords themselves: rates alone cannot tell a field that turns from one that
+    # is merely strong (a constant generator is exact at any step) or jumps once at an interface.
+    step, error = min(steps_analysis.magnus4_step(generator, starts, -k, lengths, tolerance)
+                      for generator, starts, lengths in chords)
+    count = sum(len(lengths) for _, _, lengths in chords)
     return "magnus4", step, (
-        f"photoelastic auto: the principal axes turn along the light (up to {combined.rotation_rate:.3g} rad/mm, "
-        f"retardance up to {combined.retardance_rate:.3g} rad/mm), so the linear model would be wrong; magnus4 "
-        f"with step {step:.3g} mm for an error below {tolerance:g}")
+        f"photoelastic auto: the principal axes turn along the light (up to {combined.rotation_rate:.3g} rad/mm "
+        f"between samples), so the linear model would be wrong; magnus4 with step {step:.3g} mm, where step "
+        f"doubling on {count} chords estimates an error of {error:.2g} (tolerance {tolerance:g})")
+
+
+def _generator_sampler(medium, u, v):
+    """NumPy ``points -> (p, q)``: the step generator per mm of ``medium`` in the basis (u, v)."""
+    def generator(points):
+        stress = medium.sample(points).reshape(points.shape[:-1] + (6,))
+        p, q = projection.project(tuple(np.moveaxis(stress, -1, 0)), tuple(u), tuple(v))
+        return medium.phase_rate * p, medium.phase_rate * q
+    return generator
+
+
+def _chords(starts, k, crossings):
+    """Inside segments of each line as ``(camera-side ends, lengths)``: crossings pair up in order."""
+    ends, lengths = [], []
+    for line, distances in enumerate(crossings.T):
+        distances = np.sort(distances[np.isfinite(distances)])
+        for enter, leave in zip(distances[0::2], distances[1::2]):
+            ends.append(starts[line] + leave * k)
+            lengths.append(leave - enter)
+    return np.array(ends).reshape(-1, 3), np.array(lengths)
+
+
+def _add(x, y):
+    return tuple(xi + yi for xi, yi in zip(x, y))
+
+
+def _crossings_along_lines(scene, shape, starts, k):
+    """``(crossings, lines)`` distances along ``k`` from ``starts`` where each line crosses ``shape``.
+
+    Traces each line through the scene from just before its start (other shapes
+    are passed through); ``inf`` pads lines with fewer crossings. A point is
+    inside after an odd number of them.
+    """
+    shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+    back = 1e-3
+    origin = mi.Point3f(*(starts - back * k).T)
+    direction = mi.Vector3f(*np.broadcast_to(k, starts.shape).T)
+    ray = mi.Ray3f(origin, direction)
+    active = mi.Bool(True)
+    crossings = []
+    for _ in range(_AUTO_MAX_CROSSINGS):
+        si = scene.ray_intersect(ray, active=active)
+        active &= si.is_valid()
+        on_shape = active & (dr.reinterpret_array(mi.UInt32, si.shape) == shape_id)
+        distance = dr.select(on_shape, dr.dot(si.p - origin, direction) - back, dr.inf)
+        dr.eval(distance, active)
+        crossings.append(np.array(distance))
+        if not dr.any(active):
+            break
+        ray = mi.Ray3f(_past_surface(si, direction), direction)
+    return np.stack(crossings).astype(np.float64)
 
 
 def _axpy(a, x, y):

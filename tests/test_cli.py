@@ -14,7 +14,7 @@ def test_render_writes_named_channels_and_preview(tmp_path, capsys):
     assert f"wrote {exr}" in capsys.readouterr().out
     channels = read_channels(exr)
     expected = {"Y", "jones.a", "jones.b", "jones.c", "jones.d", "char.delta", "char.theta", "char.gamma",
-                "path.length", *MEASUREMENTS}
+                "fringe.order", "path.length", *MEASUREMENTS}
     assert set(channels) == expected
     assert channels["Y"].shape == (24, 24)
     # Unit quaternions everywhere, whatever order the file stored the channels in.
