@@ -43,6 +43,7 @@ _register_plugins()
 mi.detail.add_variant_callback(_on_variant_change)
 
 from .render import RenderResult, SceneError, load_scene, render, scene_path  # noqa: E402
+from .dataset import Dataset, DatasetError  # noqa: E402
 
-__all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "DEFAULT_VARIANT",
-           "__version__"]
+__all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "Dataset", "DatasetError",
+           "DEFAULT_VARIANT", "__version__"]

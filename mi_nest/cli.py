@@ -71,6 +71,31 @@ def _parser():
     accuracy.add_argument("--res", type=int, default=256, help="image resolution (default: 256)")
     accuracy.add_argument("-o", "--output-dir", default="mi_nest_out/bench", help="where the CSV and PNG go")
 
+    simulate = commands.add_parser("simulate", help="render a multi-axis polariscope dataset of a scene")
+    simulate.add_argument("scene", help="scene XML file or shipped scene name")
+    simulate.add_argument("-o", "--output", required=True, help="dataset directory (resumed if interrupted)")
+    simulate.add_argument("--azimuth", type=int, default=32, help="azimuth rotations (default: 32)")
+    simulate.add_argument("--elevation", type=int, default=32, help="elevation rotations (default: 32)")
+    simulate.add_argument("--azimuth-range", type=float, default=180.0, help="degrees (default: 180)")
+    simulate.add_argument("--elevation-range", type=float, default=180.0, help="degrees (default: 180)")
+    simulate.add_argument("--res", type=int, help="image width and height (the scene's $res)")
+    simulate.add_argument("--spp", type=int, help="samples per pixel")
+    simulate.add_argument("--noise", type=float, default=0.0, help="Gaussian read noise sigma (the paper: 0.01)")
+    simulate.add_argument("--full-well", type=float, help="electrons at intensity 1: adds photon shot noise")
+    simulate.add_argument("--bits", type=int, choices=(8, 10, 12, 16), help="quantise to this many bits")
+    simulate.add_argument("--mosaic", action="store_true",
+                          help="capture through the IMX250MZR 2x2 micro-polariser mosaic and demosaic")
+    simulate.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
+    simulate.add_argument("--test-fraction", type=float, default=0.2, help="rotations held out (default: 0.2)")
+    simulate.add_argument("--float", action="store_true", help="store float32 instead of half floats")
+    simulate.add_argument("-D", dest="defines", action="append", default=[], type=_definition, metavar="NAME=VALUE",
+                          help="set a scene $parameter")
+
+    show = commands.add_parser("show", help="contact sheet PNG of a dataset")
+    show.add_argument("dataset", help="dataset directory")
+    show.add_argument("-c", "--channel", default="pol.45.0.0", help="channel to tile (default: pol.45.0.0)")
+    show.add_argument("-o", "--output", help="PNG path (default: DATASET/contact_sheet.png)")
+
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
 
@@ -147,6 +172,30 @@ def _bench_accuracy(scenes, res, output_dir):
         print(f"wrote {Path(path).resolve()}")
 
 
+def _simulate(args):
+    from .dataset import CameraModel, SimulationSettings, simulate
+    camera = CameraModel(read_noise=args.noise, full_well=args.full_well, bits=args.bits, mosaic=args.mosaic,
+                         seed=args.seed)
+    settings = SimulationSettings(azimuths=args.azimuth, elevations=args.elevation, azimuth_range=args.azimuth_range,
+                                  elevation_range=args.elevation_range, res=args.res, spp=args.spp,
+                                  test_fraction=args.test_fraction, camera=camera, half=not args.float)
+    report = simulate(args.scene, args.output, settings, defines=args.defines)
+    print(report.describe())
+    print(f"wrote {Path(args.output).resolve()}")
+
+
+def _show(args):
+    from .dataset import Dataset
+    from .dataset.sheet import write_contact_sheet
+    dataset = Dataset(args.dataset, allow_incomplete=True)
+    if args.channel not in dataset.channels:
+        raise ValueError(f"unknown channel '{args.channel}'; the dataset has {list(dataset.channels)}")
+    output = Path(args.output or Path(args.dataset) / "contact_sheet.png")
+    write_contact_sheet(output, dataset, args.channel)
+    print(f"{dataset}")
+    print(f"wrote {output.resolve()}")
+
+
 def _format_warning(message, category, filename, lineno, line=None):
     return f"mi-nest: warning: {message}\n"
 
@@ -166,6 +215,10 @@ def main(argv=None):
             _fem(args)
         elif args.command == "bench":
             _bench_accuracy(args.scenes, args.res, args.output_dir)
+        elif args.command == "simulate":
+            _simulate(args)
+        elif args.command == "show":
+            _show(args)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):

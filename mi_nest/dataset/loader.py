@@ -1,0 +1,117 @@
+"""``mi_nest.Dataset``: lazy access to a multi-axis polariscope dataset on disk.
+
+Views are decoded from their EXR on first use and kept in a small LRU cache, so
+a dataset larger than memory streams. Training draws random rays across
+rotations; evaluation reads whole views.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from ..io.exr import ExrFileError, read_channels
+from . import format as fmt
+
+
+class Dataset:
+    def __init__(self, directory, allow_incomplete=False, cache_views=64):
+        self.directory = Path(directory)
+        self.index = fmt.read_index(self.directory)
+        if not self.index["complete"] and not allow_incomplete:
+            raise fmt.DatasetError(f"{self.directory}: incomplete dataset (an interrupted run?); rerun the "
+                                   "simulation or acquisition to finish it, or pass allow_incomplete=True")
+        self.rotations = [r for r in self.index["rotations"] if (self.directory / r["file"]).is_file()]
+        missing = [r["file"] for r in self.index["rotations"] if r not in self.rotations]
+        if missing and self.index["complete"] and not allow_incomplete:
+            raise fmt.DatasetError(f"{self.directory}: {len(missing)} rotation EXR file(s) missing: {missing[:5]}")
+        self.resolution = tuple(self.index["resolution"])        # (width, height)
+        self.channels = tuple(self.index["channels"])
+        self._cache = OrderedDict()
+        self._cache_views = max(1, int(cache_views))
+
+    def __len__(self):
+        return len(self.rotations)
+
+    def __repr__(self):
+        return (f"Dataset({str(self.directory)!r}: {len(self)} rotations, {self.resolution[0]}x{self.resolution[1]}, "
+                f"{len(self.split('train'))} train / {len(self.split('test'))} test)")
+
+    def split(self, name):
+        """Positions (into ``rotations``) of the ``train`` or ``test`` rotations."""
+        if name not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got '{name}'")
+        return [i for i, r in enumerate(self.rotations) if r["split"] == name]
+
+    def to_world(self, position):
+        return np.array(self.rotations[position]["to_world"])
+
+    def view(self, position, channels=None):
+        """``{name: (H, W) float32}`` of rotation ``position``: measurements and masks."""
+        names = list(self.channels) if channels is None else list(channels)
+        unknown = [n for n in names if n not in self.channels and n not in self.index.get("mask_channels", ())]
+        if unknown:
+            raise ValueError(f"unknown channel(s) {unknown}; the dataset has {list(self.channels)} and masks "
+                             f"{self.index.get('mask_channels', [])}")
+        decoded = self._decoded(position)
+        return {n: decoded[n] for n in names}
+
+    def _decoded(self, position):
+        if position in self._cache:
+            self._cache.move_to_end(position)
+            return self._cache[position]
+        entry = self.rotations[position]
+        try:
+            decoded = read_channels(self.directory / entry["file"])
+        except ExrFileError as error:
+            raise fmt.DatasetError(f"rotation {entry['index']}: {error}") from error
+        height_width = (self.resolution[1], self.resolution[0])
+        shapes = {a.shape for a in decoded.values()}
+        if shapes != {height_width}:
+            raise fmt.DatasetError(f"{entry['file']}: images are {sorted(shapes)}, the dataset says "
+                                   f"{self.resolution[0]}x{self.resolution[1]}")
+        missing = [n for n in self.channels if n not in decoded]
+        if missing:
+            raise fmt.DatasetError(f"{entry['file']}: missing channel(s) {missing}")
+        self._cache[position] = decoded
+        if len(self._cache) > self._cache_views:
+            self._cache.popitem(last=False)
+        return decoded
+
+    def measurements(self, position):
+        """``(H, W, 16)`` in the order of ``channels``."""
+        view = self.view(position)
+        return np.stack([view[n] for n in self.channels], axis=-1)
+
+    def ray_batch(self, size, rng, split="train", views_per_batch=8, mask="mask.dolp"):
+        """Random pixels across rotations: ``(positions, rows, columns, targets (N, 16))``.
+
+        Each batch draws from ``views_per_batch`` random rotations, so a batch
+        decodes few files however large the dataset; pixels come from ``mask``
+        (None: anywhere).
+        """
+        pool = self.split(split)
+        if not pool:
+            raise ValueError(f"the dataset has no '{split}' rotations")
+        chosen = rng.choice(pool, size=min(views_per_batch, len(pool)), replace=False)
+        per_view = np.diff(np.linspace(0, size, len(chosen) + 1).round().astype(int))
+        positions, rows, columns, targets = [], [], [], []
+        for position, count in zip(chosen, per_view):
+            measured = self.measurements(position)
+            if mask is None:
+                candidates = np.arange(measured.shape[0] * measured.shape[1])
+            else:
+                candidates = np.flatnonzero(self.view(position, [mask])[mask] > 0.5)
+            if candidates.size == 0:
+                continue
+            picked = rng.choice(candidates, size=count, replace=True)
+            r, c = np.unravel_index(picked, measured.shape[:2])
+            positions.append(np.full(count, position))
+            rows.append(r)
+            columns.append(c)
+            targets.append(measured[r, c])
+        if not positions:
+            raise ValueError(f"no pixel inside '{mask}' in the chosen rotations")
+        return (np.concatenate(positions), np.concatenate(rows), np.concatenate(columns),
+                np.concatenate(targets))
