@@ -75,7 +75,7 @@ def reference_pose(scene):
     return np.array(mi.traverse(camera_of(scene))["to_world"].matrix, dtype=np.float64).reshape(4, 4)
 
 
-def specimen_media(scene):
+def specimen_shapes(scene):
     shapes = [s for s in scene.shapes() if s.interior_medium() is not None
               and hasattr(s.interior_medium(), "phase_tensor")]
     if not shapes:
@@ -84,7 +84,7 @@ def specimen_media(scene):
 
 
 def _index(scene, scene_file, defines, settings, rotations):
-    shapes = specimen_media(scene)
+    shapes = specimen_shapes(scene)
     low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
     high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
     center = 0.5 * (low + high)
