@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 
@@ -149,12 +150,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        self._setup = self.check_scene(scene, sensor)
-        self._method, self._step = self.method, self.step_size
-        if self.method == "auto":
-            self._method, self._step, self.auto_choice = _choose_method(self._setup, scene, sensor, self.tolerance)
-            logging.getLogger("mi_nest").info(self.auto_choice)
-        try:
+        with self._prepared(scene, sensor):
             if not _sums_pixels_directly(sensor.film()):
                 image = super().render(scene, sensor, seed, spp, develop, evaluate)
             elif not develop:
@@ -166,9 +162,92 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             if develop and isinstance(image, mi.TensorXf):
                 self.aliasing = _check_aliasing(image)
             return image
+
+    def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+        """Reverse-mode derivative of :meth:`render` by path replay: memory does not grow with the steps.
+
+        ``grad_in`` is the adjoint of the developed image; every channel but
+        ``fringe.order`` and ``path.length`` propagates to the field.
+        """
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        film = sensor.film()
+        if not _sums_pixels_directly(film):
+            raise ValueError("photoelastic: differentiable rendering needs a box-filtered film "
+                             '(<rfilter type="box"/>) without border')
+        with self._prepared(scene, sensor), dr.suspend_grad():
+            self._require_adjoint()
+            sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
+            ray, weight, _ = self.sample_rays(scene, sensor, sampler)
+            # Each pixel is the mean of its spp consecutive samples: each sample receives grad / spp.
+            grad = mi.TensorXf(grad_in)
+            channels = grad.shape[-1]
+            pixel = dr.arange(mi.UInt32, dr.width(ray.o)) // spp
+            per_sample = [dr.gather(mi.Float, grad.array, pixel * channels + c) * (weight / spp)
+                          for c in range(channels)]
+            first = channels - len(CHANNELS)
+            _, _, _, state = self.sample(dr.ADMode.Primal, scene, sampler.clone(), ray, mi.Bool(True))
+            self.sample(dr.ADMode.Backward, scene, sampler, ray, mi.Bool(True), δL=mi.Spectrum(per_sample[0]),
+                        δaovs=per_sample[first:], state_in=state)
+
+    def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+        raise NotImplementedError("photoelastic: forward-mode derivatives are not available; differentiate in "
+                                  "reverse mode (dr.backward on the rendered image)")
+
+    @contextlib.contextmanager
+    def _prepared(self, scene, sensor, right=None):
+        """Scene lookup tables and the method for one render (``auto`` decides here)."""
+        if sensor is None and self.method == "auto":
+            raise ValueError("photoelastic: 'auto' analyses the field as one camera sees it; rays drawn across "
+                             "views need an explicit method and step_size")
+        self._setup = _SceneSetup(scene, sensor, right)
+        self._method, self._step = self.method, self.step_size
+        try:
+            if self.method == "auto":
+                self._method, self._step, self.auto_choice = _choose_method(self._setup, scene, sensor,
+                                                                            self.tolerance)
+                logging.getLogger("mi_nest").info(self.auto_choice)
+            yield self._setup
         finally:
             self._setup = None
             self._norm_error = None
+
+    def _require_adjoint(self):
+        if self._method == "rk4":
+            raise ValueError("photoelastic: rk4 is not unitary, so its march cannot be replayed backwards; "
+                             "differentiate with 'product', 'magnus4' or 'linear'")
+
+    def trace_rays(self, scene, rays, right, seed=0):
+        """Primal march of arbitrary rays (e.g. a training batch drawn across views).
+
+        ``right`` is each ray's image-right direction (its camera's), which fixes
+        the polariscope frame. Returns ``(state, blocked)``: the accumulated
+        state (the Jones quaternion, or for ``linear`` the summed generator; see
+        :meth:`jones`) and whether an opaque shape stops the ray.
+        """
+        with dr.suspend_grad(), self._prepared(scene, None, right) as setup:
+            seeds = _ray_seeds(seed, dr.width(rays.o))
+            (state, _), blocked, _ = self.walk(scene, rays, setup, mi.Bool(True), seeds,
+                                               self._primal_carry(), self._primal_segment)
+            dr.eval(state, blocked)
+            return state, blocked
+
+    def backpropagate_rays(self, scene, rays, right, state, state_grad, seed=0):
+        """Accumulate into the field parameters the gradient of ``sum(state_grad . state)``.
+
+        Replays the march of :meth:`trace_rays` (same rays, right and seed);
+        Jones steps are unitary, so the part of the product still ahead is
+        peeled off with conjugates instead of being stored: memory does not
+        grow with the number of steps.
+        """
+        with dr.suspend_grad(), self._prepared(scene, None, right) as setup:
+            self._require_adjoint()
+            seeds = _ray_seeds(seed, dr.width(rays.o))
+            self.replay(scene, rays, setup, mi.Bool(True), seeds, state, state_grad)
+
+    def jones(self, state, blocked):
+        """The Jones quaternion from a traced state (zero where blocked)."""
+        return tuple(dr.select(blocked, 0.0, x) for x in self.finish(state))
 
     def _render_pixel_sums(self, scene, sensor, seed, spp):
         """``ADIntegrator.render`` for box-filtered films, without per-sample atomics."""
@@ -188,39 +267,59 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                                          rfilter=film.rfilter()))
             return film.develop()
 
-    def render_forward(self, *args, **kwargs):
-        raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
-
-    render_backward = render_forward
-
-    def sample(self, mode, scene, sampler, ray, active, **kwargs):
-        if mode != dr.ADMode.Primal:
-            raise NotImplementedError("photoelastic: differentiable rendering is not available yet")
+    def sample(self, mode, scene, sampler, ray, active, δL=None, δaovs=None, state_in=None, **kwargs):
         setup = self._setup
-        q, fringe, blocked, length = self.trace(scene, sampler, ray, setup, active)
-        q = tuple(dr.select(blocked, 0.0, x) for x in q)
-        if self._method == "rk4":
-            # The only method that is not unitary: measure how far it drifted (read after the render).
-            self._norm_error = dr.max(dr.select(blocked, 0.0, dr.abs(su2.norm_squared(q) - 1.0)))
+        seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
+        if mode == dr.ADMode.Primal:
+            (state, fringe), blocked, length = self.walk(scene, ray, setup, active, seeds,
+                                                         self._primal_carry(), self._primal_segment)
+            if self._method == "rk4":
+                # The only method that is not unitary: measure how far it drifted (read after the render).
+                self._norm_error = dr.max(dr.select(blocked, 0.0, dr.abs(su2.norm_squared(state) - 1.0)))
+            main, aovs = self.outputs(state, fringe, blocked, length)
+            return main, mi.Bool(True), aovs, (state, fringe, blocked, length)
+        if mode != dr.ADMode.Backward:
+            raise NotImplementedError("photoelastic: forward-mode derivatives are not available")
+        state, fringe, blocked, length = state_in
+        with dr.resume_grad():
+            leaf = tuple(mi.Float(dr.detach(x)) for x in state)
+            dr.enable_grad(leaf)
+            main, aovs = self.outputs(leaf, fringe, blocked, length)
+            objective = dr.sum(δL * main)
+            for name, value, grad in zip(CHANNELS, aovs, δaovs):
+                # Only channels of the Jones product carry a derivative; skipping zero adjoints also
+                # keeps 0 * inf (char.theta at zero retardance) out of the sum.
+                if name not in UNDIFFERENTIATED and dr.any(grad != 0, axis=None):
+                    objective += grad * value
+            dr.backward_from(objective)
+            state_grad = dr.grad(leaf)
+        self.replay(scene, ray, setup, active, seeds, state, state_grad)
+        return mi.Spectrum(0), mi.Bool(True), [mi.Float(0)] * len(CHANNELS), None
+
+    def outputs(self, state, fringe, blocked, length):
+        """Main intensity and the AOV channels from a traced state."""
+        setup = self._setup
+        q = self.jones(state, blocked)
         delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
         aovs = list(q) + [delta, theta, gamma]
         aovs += [radiance * scope.intensity(q) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        main = radiance * setup.polariscope.intensity(q)
-        return mi.Spectrum(main), mi.Bool(True), aovs, None
+        return mi.Spectrum(radiance * setup.polariscope.intensity(q)), aovs
 
     @dr.syntax
-    def trace(self, scene, sampler, ray, setup, active):
-        """Per ray: the Jones quaternion, the summed generator ``(b, c)`` (the linear model's), whether
-        an opaque shape blocks it, and its length inside specimens."""
+    def walk(self, scene, ray, setup, active, seeds, carry, segment):
+        """Follow each ray through every specimen; ``carry = segment(carry, ...)`` for each inside segment.
+
+        Returns ``(carry, blocked, length)``: whether an opaque shape stops the ray,
+        and its length inside specimens. The primal pass and the adjoint replay
+        differ only in ``carry`` and ``segment``.
+        """
         d = mi.Vector3f(ray.d)
         coefficients = setup.projection_coefficients(d)
         ray = mi.Ray3f(ray)
         origin = mi.Point3f(ray.o)
-        q = self.accumulate_start()
-        fringe = (mi.Float(0), mi.Float(0))
         medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
         blocked = mi.Bool(False)
         length = mi.Float(0)
@@ -239,17 +338,69 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             # The chord between hit points, not the spawned ray's t (its origin is offset).
             chord = dr.norm(si.p - origin)
             marched = active & hit & (inside != 0)
-            segment, segment_fringe = self.march(inside, origin, d, chord, coefficients, sampler, setup, marched)
+            steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / self._step), 1), 0))
+            h = chord / mi.Float(dr.maximum(steps, 1))
+            segment_seed = mi.sample_tea_32(seeds, crossings)[0]
+            carry = segment(carry, _Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
             length += dr.select(marched, chord, 0.0)
-            q = self.accumulate(q, segment)
-            fringe = _add(fringe, segment_fringe)
             blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
             ray = mi.Ray3f(_past_surface(si, d), d)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
-        return self.finish(q), fringe, blocked, length
+        return carry, blocked, length
+
+    def _primal_carry(self):
+        return self.accumulate_start(), (mi.Float(0), mi.Float(0))
+
+    def _primal_segment(self, carry, segment, setup):
+        q, fringe = carry
+        result, segment_fringe = self.march(segment, setup)
+        return self.accumulate(q, result), _add(fringe, segment_fringe)
+
+    def replay(self, scene, ray, setup, active, seeds, state, state_grad):
+        """Adjoint pass: march again, back-propagating ``state_grad`` into every step's field lookups.
+
+        ``linear``: the state is a sum, so each step receives ``state_grad`` itself.
+        Products ``J = A U B``: a step ``U`` receives ``conj(A) dJ conj(B)``, where
+        ``A`` (the steps before) grows and ``B = conj(U) B`` (the steps after) shrinks
+        as the replay advances: both are exact since every step is unitary.
+        """
+        if self._method == "linear":
+            def segment(carry, segment, setup):
+                self.replay_linear(state_grad, segment, setup)
+                return carry
+            carry = mi.Float(0)
+        else:
+            def segment(carry, segment, setup):
+                return self.replay_chain(carry, state_grad, segment, setup)
+            carry = (su2.identity(mi.Float(0)), tuple(mi.Float(x) for x in state))
+        self.walk(scene, ray, setup, active, seeds, carry, segment)
+
+    @dr.syntax
+    def replay_chain(self, carry, state_grad, segment, setup):
+        before, after = carry
+        i = mi.UInt32(0)
+        while i < segment.steps:
+            with dr.resume_grad():
+                propagator, _ = self.step(i, segment, setup)
+                unit = dr.detach(propagator)
+                after = su2.renormalize(su2.multiply(su2.conjugate(unit), after))
+                adjoint = su2.multiply(su2.multiply(su2.conjugate(before), state_grad), su2.conjugate(after))
+                dr.backward_from(_dot(adjoint, propagator))
+            before = su2.multiply_renormalized(before, unit)
+            i += 1
+        return before, after
+
+    @dr.syntax
+    def replay_linear(self, state_grad, segment, setup):
+        i = mi.UInt32(0)
+        while i < segment.steps:
+            with dr.resume_grad():
+                generator = self.generator_at(segment.point(i, self._offset(segment, i)), segment, setup)
+                dr.backward_from(segment.h * _dot(state_grad, generator))
+            i += 1
 
     def accumulate_start(self):
         zero = mi.Float(0)
@@ -267,18 +418,16 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             return su2.exponential(q)
         return q
 
-    def march(self, medium, origin, d, chord, coefficients, sampler, setup, active):
-        """The segment ``origin + t d``, t in [0, chord], inside ``medium``, with the chosen method."""
-        steps = mi.UInt32(dr.select(active, dr.maximum(dr.ceil(chord / self._step), 1), 0))
-        h = chord / mi.Float(dr.maximum(steps, 1))
+    def march(self, segment, setup):
+        """The segment's propagator (``linear``: its summed generator) and ``(b, c)`` of its summed generator."""
         if self._method == "rk4":
-            return self.march_rk4(steps, h, medium, origin, d, coefficients, setup)
+            return self.march_rk4(segment, setup)
         if self._method == "linear":
-            return self.march_linear(steps, h, medium, origin, d, coefficients, sampler, setup)
-        return self.march_chains(steps, h, medium, origin, d, coefficients, sampler, setup)
+            return self.march_linear(segment, setup)
+        return self.march_chains(segment, setup)
 
     @dr.syntax
-    def march_chains(self, steps, h, medium, origin, d, coefficients, sampler, setup):
+    def march_chains(self, segment, setup):
         """Ordered product of per-step propagators (``product``, ``magnus4``).
 
         Marching away from the camera goes against the light, so later steps
@@ -288,71 +437,80 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         single chain would leave them waiting on its latency. An odd count
         leaves the back half one index past the end: a zero-length step.
         """
-        half = (steps + 1) // 2
+        half = (segment.steps + 1) // 2
         front = su2.identity(mi.Float(0))
         back = su2.identity(mi.Float(0))
         fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
         while i < half:
-            front_step, front_fringe = self.step(i, steps, medium, origin, d, h, coefficients, sampler, setup)
-            back_step, back_fringe = self.step(i + half, steps, medium, origin, d, h, coefficients, sampler, setup)
+            front_step, front_fringe = self.step(i, segment, setup)
+            back_step, back_fringe = self.step(i + half, segment, setup)
             front = su2.multiply_renormalized(front, front_step)
             back = su2.multiply_renormalized(back, back_step)
             fringe = _add(fringe, _add(front_fringe, back_fringe))
             i += 1
         return su2.multiply(front, back), fringe
 
-    def step(self, index, steps, medium, origin, d, h, coefficients, sampler, setup):
-        """Propagator of step ``index`` of length ``h`` (zero length past ``steps``) and the
-        ``(b, c)`` part of its mean generator times ``h``."""
-        length = dr.select(index < steps, h, 0.0)
+    def _offset(self, segment, index):
+        """Where in step ``index`` the field is sampled, as a fraction of the step.
+
+        Jittered offsets hash (segment, index) instead of drawing from a sampler,
+        so the adjoint replay, which visits the steps in another order, samples
+        the same points.
+        """
+        if self.jitter:
+            return mi.sample_tea_float32(segment.seed, index)
+        return mi.Float(POINTS[self.points])
+
+    def step(self, index, segment, setup):
+        """Propagator of step ``index`` (zero length past the segment's steps) and the
+        ``(b, c)`` part of its mean generator times its length."""
+        length = dr.select(index < segment.steps, segment.h, 0.0)
         if self._method == "magnus4":
             # Gauss points in light order: the farther one from the camera first.
-            first, second = (self.generator_at(dr.fma(d, (mi.Float(index) + g) * h, origin), medium,
-                                               coefficients, setup) for g in steps_analysis.GAUSS_POINTS)
+            first, second = (self.generator_at(segment.point(index, g), segment, setup)
+                             for g in steps_analysis.GAUSS_POINTS)
             half = 0.5 * length
             return su2.magnus4(first, second, length), (half * (first[1] + second[1]),
                                                         half * (first[2] + second[2]))
-        offset = sampler.next_1d() if self.jitter else mi.Float(POINTS[self.points])
-        p = dr.fma(d, (mi.Float(index) + offset) * h, origin)
-        p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
-        generator = su2.generator(p_diff, q_diff, length)
+        point = segment.point(index, self._offset(segment, index))
+        generator = su2.generator(*self.transverse(point, segment, setup), length)
         return su2.exponential(generator), generator[1:3]
 
-    def generator_at(self, p, medium, coefficients, setup):
+    def transverse(self, p, segment, setup):
+        """``(s_uu - s_vv, 2 s_uv)`` at ``p``, scaled to phase per mm."""
+        return projection.apply_coefficients(segment.coefficients, setup.phase_tensor(segment.medium, p))
+
+    def generator_at(self, p, segment, setup):
         """The propagation generator per unit length at ``p`` (a pure quaternion)."""
-        p_diff, q_diff = projection.apply_coefficients(coefficients, setup.phase_tensor(medium, p))
-        return su2.generator(p_diff, q_diff)
+        return su2.generator(*self.transverse(p, segment, setup))
 
     @dr.syntax
-    def march_linear(self, steps, h, medium, origin, d, coefficients, sampler, setup):
-        """Midpoint sum of the generator over the segment (``linear``: exponentiated once per ray)."""
+    def march_linear(self, segment, setup):
+        """Midpoint (or jittered) sum of the generator over the segment (``linear``: exponentiated once per ray)."""
         total = (mi.Float(0), mi.Float(0), mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
-        while i < steps:
+        while i < segment.steps:
             offset = mi.Float(0.5)
             if dr.hint(self.jitter, mode="scalar"):
-                offset = sampler.next_1d()
-            generator = self.generator_at(dr.fma(d, (mi.Float(i) + offset) * h, origin), medium,
-                                          coefficients, setup)
-            total = _axpy(h, generator, total)
+                offset = self._offset(segment, i)
+            total = _axpy(segment.h, self.generator_at(segment.point(i, offset), segment, setup), total)
             i += 1
         return total, total[1:3]
 
     @dr.syntax
-    def march_rk4(self, steps, h, medium, origin, d, coefficients, setup):
+    def march_rk4(self, segment, setup):
         """Classical Runge-Kutta on ``K' = K A(t)`` (t from the camera): fourth order, not unitary.
 
         Its amplification per step is ``|R(i x)|^2 = 1 - x^6/72 + x^8/576`` for a
         phase ``x`` per step: it damps below ``x = 2 sqrt(2)`` and blows up above.
         """
+        h = segment.h
         k = su2.identity(mi.Float(0))
         fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
-        while i < steps:
-            t = mi.Float(i) * h
-            a0, am, a1 = (self.generator_at(dr.fma(d, t + f * h, origin), medium, coefficients, setup)
-                          for f in (0.0, 0.5, 1.0))
+        while i < segment.steps:
+            a0, am, a1 = (self.generator_at(segment.point(i, f), segment, setup) for f in (0.0, 0.5, 1.0))
             k1 = su2.multiply(k, a0)
             k2 = su2.multiply(_axpy(0.5 * h, k1, k), am)
             k3 = su2.multiply(_axpy(0.5 * h, k2, k), am)
@@ -361,6 +519,34 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             fringe = _axpy(h, am[1:3], fringe)
             i += 1
         return k, fringe
+
+
+class _Segment:
+    """One inside chord of each ray: ``steps`` steps of length ``h`` from ``origin`` along ``d``."""
+
+    DRJIT_STRUCT = {"steps": mi.UInt32, "h": mi.Float, "medium": mi.UInt32, "origin": mi.Point3f,
+                    "d": mi.Vector3f, "coefficients": tuple, "seed": mi.UInt32}
+
+    def __init__(self, steps=None, h=None, medium=None, origin=None, d=None, coefficients=None, seed=None):
+        self.steps, self.h, self.medium, self.origin, self.d = steps, h, medium, origin, d
+        self.coefficients, self.seed = coefficients, seed
+
+    def point(self, index, offset):
+        """The point a fraction ``offset`` into step ``index``."""
+        return dr.fma(self.d, (mi.Float(index) + offset) * self.h, self.origin)
+
+
+def _ray_seeds(seed, count):
+    return mi.sample_tea_32(mi.UInt32(seed), dr.arange(mi.UInt32, count))[0]
+
+
+def _dot(x, y):
+    return sum(a * b for a, b in zip(x, y))
+
+
+# Channels whose derivative ``render_backward`` does not propagate: the fringe-order estimate
+# and the path length are diagnostics, not functions of the Jones product.
+UNDIFFERENTIATED = FRINGE_CHANNELS + PATH_CHANNELS
 
 
 # |J|^2 may drift this far from 1 before rk4 results are reported as unreliable.
@@ -583,7 +769,7 @@ def _past_surface(si, d):
 class _SceneSetup:
     """What one render needs from the scene: specimen media, shape lookup, polariscope."""
 
-    def __init__(self, scene, sensor):
+    def __init__(self, scene, sensor, right=None):
         self.media = []
         shape_media = {}
         for shape in scene.shapes():
@@ -611,8 +797,9 @@ class _SceneSetup:
         self.polariscope = Polariscope(polarizer=light.polarizer, input_qwp=light.qwp,
                                        output_qwp=getattr(sensor, "qwp", None),
                                        analyzer=getattr(sensor, "analyzer", None))
-        to_world = sensor.world_transform()
-        self._right = dr.normalize(to_world @ mi.Vector3f(-1, 0, 0))
+        if right is None:
+            right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
+        self._right = dr.normalize(mi.Vector3f(right))
 
     def projection_coefficients(self, d):
         """Per ray, what turns :meth:`phase_tensor` into the step generator ``(p, q)``.

@@ -52,8 +52,13 @@ class _DrJitOps:
         self.rsqrt = dr.rsqrt
 
         def replace_where(cond, compute, current, args):
-            # A symbolic if: LLVM skips ``compute`` for every packet with no lane in ``cond``.
-            return dr.if_stmt(args=args, cond=cond, true_fn=compute, false_fn=lambda *_: current)
+            # A symbolic if: LLVM skips ``compute`` for every packet with no lane in ``cond``. Both
+            # branches take everything they read as arguments: derivatives do not flow through
+            # values a symbolic branch captures.
+            count = len(args)
+            return dr.if_stmt(args=tuple(args) + tuple(current), cond=cond,
+                              true_fn=lambda *state: compute(*state[:count]),
+                              false_fn=lambda *state: state[count:])
         self.replace_where = replace_where
         self.sign = dr.sign
 
