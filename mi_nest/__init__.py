@@ -44,6 +44,7 @@ mi.detail.add_variant_callback(_on_variant_change)
 
 from .render import RenderResult, SceneError, load_scene, render, scene_path  # noqa: E402
 from .dataset import Dataset, DatasetError  # noqa: E402
+from .reconstruct import DivergenceError, Reconstruction, optimize  # noqa: E402
 
 __all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "Dataset", "DatasetError",
-           "DEFAULT_VARIANT", "__version__"]
+           "optimize", "Reconstruction", "DivergenceError", "DEFAULT_VARIANT", "__version__"]

@@ -26,13 +26,19 @@ def scene_path(name: str) -> Path:
     return path
 
 
-def load_scene(path, **defaults):
-    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults."""
+def scene_file(path) -> Path:
+    """The scene XML a path or shipped scene name stands for."""
     path = Path(path)
     if not path.exists() and len(path.parts) == 1:
         path = scene_path(path.name)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")
+    return path.resolve()
+
+
+def load_scene(path, **defaults):
+    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults."""
+    path = scene_file(path)
     try:
         # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
         # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.

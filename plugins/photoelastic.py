@@ -8,6 +8,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_nest import occupancy
 from mi_nest.physics import MEASUREMENTS, Polariscope, aliasing, projection, su2
 from mi_nest.physics import steps as steps_analysis
 
@@ -221,16 +222,17 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """Primal march of arbitrary rays (e.g. a training batch drawn across views).
 
         ``right`` is each ray's image-right direction (its camera's), which fixes
-        the polariscope frame. Returns ``(state, blocked)``: the accumulated
-        state (the Jones quaternion, or for ``linear`` the summed generator; see
-        :meth:`jones`) and whether an opaque shape stops the ray.
+        the polariscope frame. Returns ``(state, blocked, length)``: the
+        accumulated state (the Jones quaternion, or for ``linear`` the summed
+        generator; see :meth:`jones`), whether an opaque shape stops the ray, and
+        its path length (mm) inside specimens.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right) as setup:
             seeds = _ray_seeds(seed, dr.width(rays.o))
-            (state, _), blocked, _ = self.walk(scene, rays, setup, mi.Bool(True), seeds,
-                                               self._primal_carry(), self._primal_segment)
-            dr.eval(state, blocked)
-            return state, blocked
+            (state, _), blocked, length = self.walk(scene, rays, setup, mi.Bool(True), seeds,
+                                                    self._primal_carry(), self._primal_segment)
+            dr.eval(state, blocked, length)
+            return state, blocked, length
 
     def backpropagate_rays(self, scene, rays, right, state, state_grad, seed=0):
         """Accumulate into the field parameters the gradient of ``sum(state_grad . state)``.
@@ -242,6 +244,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """
         with dr.suspend_grad(), self._prepared(scene, None, right) as setup:
             self._require_adjoint()
+            # Unevaluated adjoints carry the loss's constants (1 / batch size...) into the kernel,
+            # which would then be rebuilt whenever they change.
+            state, state_grad = tuple(mi.Float(x) for x in state), tuple(mi.Float(x) for x in state_grad)
+            dr.make_opaque(state, state_grad)
             seeds = _ray_seeds(seed, dr.width(rays.o))
             self.replay(scene, rays, setup, mi.Bool(True), seeds, state, state_grad)
 
@@ -346,7 +352,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
-            ray = mi.Ray3f(_past_surface(si, d), d)
+            ray = mi.Ray3f(occupancy.past_surface(si, d), d)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
         return carry, blocked, length
@@ -537,7 +543,8 @@ class _Segment:
 
 
 def _ray_seeds(seed, count):
-    return mi.sample_tea_32(mi.UInt32(seed), dr.arange(mi.UInt32, count))[0]
+    # Opaque: a literal seed would be compiled into the kernel, rebuilding it for every new seed.
+    return mi.sample_tea_32(dr.opaque(mi.UInt32, seed), dr.arange(mi.UInt32, count))[0]
 
 
 def _dot(x, y):
@@ -585,8 +592,8 @@ def _check_aliasing(image):
 _AUTO_LINES, _AUTO_SAMPLES = 32, 65
 # Of those lines, how many are marched at halving steps to estimate the magnus4 error.
 _AUTO_CHORDS = 64
-# Crossings followed per analysis line, and the step when no line meets a specimen.
-_AUTO_MAX_CROSSINGS, _AUTO_FALLBACK_STEP = 64, 1.0
+# The step when no analysis line meets a specimen.
+_AUTO_FALLBACK_STEP = 1.0
 
 
 def _choose_method(setup, scene, sensor, tolerance):
@@ -611,7 +618,7 @@ def _choose_method(setup, scene, sensor, tolerance):
         grid_a, grid_b, grid_s = np.meshgrid(a, b, s, indexing="ij")
         points = grid_a[..., None] * u + grid_b[..., None] * v + grid_s[..., None] * k
         starts = points[:, :, 0].reshape(-1, 3)
-        crossings = _crossings_along_lines(scene, shape, starts, k)
+        crossings = occupancy.crossings_along_lines(scene, shape, starts, k)
         inside = (crossings[:, :, None] < (s - s[0])[None, None, :]).sum(axis=0) % 2 == 1
         if not inside.any():
             continue
@@ -666,33 +673,6 @@ def _chords(starts, k, crossings):
 
 def _add(x, y):
     return tuple(xi + yi for xi, yi in zip(x, y))
-
-
-def _crossings_along_lines(scene, shape, starts, k):
-    """``(crossings, lines)`` distances along ``k`` from ``starts`` where each line crosses ``shape``.
-
-    Traces each line through the scene from just before its start (other shapes
-    are passed through); ``inf`` pads lines with fewer crossings. A point is
-    inside after an odd number of them.
-    """
-    shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
-    back = 1e-3
-    origin = mi.Point3f(*(starts - back * k).T)
-    direction = mi.Vector3f(*np.broadcast_to(k, starts.shape).T)
-    ray = mi.Ray3f(origin, direction)
-    active = mi.Bool(True)
-    crossings = []
-    for _ in range(_AUTO_MAX_CROSSINGS):
-        si = scene.ray_intersect(ray, active=active)
-        active &= si.is_valid()
-        on_shape = active & (dr.reinterpret_array(mi.UInt32, si.shape) == shape_id)
-        distance = dr.select(on_shape, dr.dot(si.p - origin, direction) - back, dr.inf)
-        dr.eval(distance, active)
-        crossings.append(np.array(distance))
-        if not dr.any(active):
-            break
-        ray = mi.Ray3f(_past_surface(si, direction), direction)
-    return np.stack(crossings).astype(np.float64)
 
 
 def _axpy(a, x, y):
@@ -752,18 +732,6 @@ def _pixel_sums(film, spp, channels):
         channels = [dr.block_sum(channel, spp) for channel in channels]
     interleaved = dr.ravel(mi.ArrayXf(channels), order="F")
     return mi.TensorXf(interleaved, (height, width, len(channels)))
-
-
-def _past_surface(si, d):
-    """Continue on the camera line, just past the surface.
-
-    ``si.spawn_ray`` offsets along the normal, which moves the continued ray off
-    the line by ~(1 + |p|) 1e-4 mm: on curved surfaces the exit point, and the
-    chord, would be wrong by about that much. Moving along ``d`` instead by the
-    same normal clearance (capped for grazing rays) keeps every hit on the line.
-    """
-    clearance = (1.0 + dr.max(dr.abs(si.p))) * mi.math.RayEpsilon
-    return dr.fma(d, clearance / dr.maximum(dr.abs(dr.dot(si.n, d)), 1e-2), si.p)
 
 
 class _SceneSetup:

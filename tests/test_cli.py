@@ -1,4 +1,5 @@
 """The mi-nest command line: render with -D, EXR channels by name, PNG preview, errors."""
+import re
 import numpy as np
 
 from mi_nest.cli import main
@@ -32,8 +33,11 @@ def test_render_reports_errors_with_exit_code(tmp_path, capsys):
     assert "nonsense" in capsys.readouterr().err
 
 
-def test_demo_prints_where_it_wrote(tmp_path, capsys):
-    assert main(["demo", "-o", str(tmp_path)]) == 0
+def test_demo_runs_the_whole_loop_and_prints_where_it_wrote(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path), "--iterations", "20"]) == 0
     out = capsys.readouterr().out
     assert str(tmp_path / "disk_compression.exr") in out and "fringe order at the centre 6.006" in out
-    assert (tmp_path / "disk_compression.png").exists()
+    assert re.search(r"relative deviatoric stress error: \d+\.\d%", out)
+    for name in ("disk_compression.png", "truth.exr", "reconstructed.exr", "truth_vs_reconstructed.png",
+                 "dataset/dataset.json", "reconstruction/field.npz", "reconstruction/test_view.png"):
+        assert (tmp_path / name).exists(), name

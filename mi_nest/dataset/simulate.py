@@ -18,6 +18,7 @@ import numpy as np
 from .. import __version__
 from ..io.exr import ExrFileError, read_channels, write_channels
 from ..render import SceneError, load_scene, render
+from ..render import scene_file as resolved_scene_file
 from . import format as fmt
 from .camera import CameraModel
 from .masks import agreement, dolp_mask
@@ -95,7 +96,7 @@ def _index(scene, scene_file, defines, settings, rotations):
     return {
         "format": fmt.FORMAT, "version": fmt.VERSION, "complete": False,
         "software": {"mi_nest": __version__, "mitsuba": mi.__version__},
-        "source": {"kind": "simulated", "scene": str(Path(scene_file).resolve()), "defines": dict(defines)},
+        "source": {"kind": "simulated", "scene": str(resolved_scene_file(scene_file)), "defines": dict(defines)},
         "units": fmt.UNITS,
         "resolution": [int(film.size()[0]), int(film.size()[1])],
         "spp": int(settings.spp or scene.sensors()[0].sampler().sample_count()),

@@ -33,7 +33,8 @@ class FringeAliasing:
     @property
     def resolution_factor(self):
         """How many times finer the pixels must be for 99% of the specimen to be sampled."""
-        return max(1, math.ceil(self.percentile_99 / NYQUIST - 1e-9))
+        # Small images put the 99th percentile below the aliased pixels it should cover.
+        return max(2 if self.aliased else 1, math.ceil(self.percentile_99 / NYQUIST - 1e-9))
 
     def describe(self):
         return (f"fringes denser than the pixel grid (over {NYQUIST:g} order per pixel) in "

@@ -1,0 +1,318 @@
+"""Trainable stress fields: dense grid, multi-resolution hash grid, and the NeST MLP.
+
+Every representation is trace-free (NeST): it stores the five deviatoric
+components ``(xx, yy, yz, zx, xy)`` and sets ``zz = -xx - yy``. The mean stress
+does not change birefringence, so nothing else could be recovered. Values are
+stored in units of ``stress_scale`` (MPa), the stress that gives about one
+fringe across the specimen, so that learning rates do not depend on the
+material or the load. Fields are only ever evaluated inside the specimen (rays
+march only there); :func:`sample_inside` and the metrics apply the occupancy.
+
+The interface is :class:`StressField`'s ``eval(p)`` plus what an optimiser
+needs: ``parameters()`` (name -> Dr.Jit array), ``assign(values)`` (attach the
+optimiser's variables), ``state()``/``from_state()`` (NumPy, for checkpoints).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..fields.base import StressField
+
+KINDS = ("grid", "hashgrid", "mlp")
+DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
+
+
+@dataclass(frozen=True)
+class FieldConfig:
+    """What to reconstruct with. ``kind="auto"`` picks the cheapest that fits (:func:`choose_kind`)."""
+    kind: str = "auto"
+    resolution: int = 32             # grid: nodes along the longest axis
+    smoothness: float = 0.0          # grid: weight of the squared-difference (Tikhonov) regulariser
+    levels: int = 8                  # hashgrid
+    features_per_level: int = 2      # hashgrid
+    hashmap_size: int = 2 ** 15      # hashgrid: entries per level
+    base_resolution: int = 4         # hashgrid
+    level_scale: float = 1.5         # hashgrid: resolution ratio between levels
+    width: int = 64                  # MLPs: hidden units per layer
+    layers: int = 3                  # mlp: hidden layers (hashgrid: 1)
+    octaves: int = 6                 # mlp: sinusoidal encoding octaves
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.kind not in KINDS + ("auto",):
+            raise ValueError(f"field kind must be one of {KINDS + ('auto',)}, got '{self.kind}'")
+        for name in ("resolution", "levels", "features_per_level", "hashmap_size", "base_resolution", "width",
+                     "layers", "octaves"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"field option '{name}' must be a positive integer, got {getattr(self, name)}")
+        if self.resolution < 2:
+            raise ValueError(f"grid resolution must be at least 2, got {self.resolution}")
+        if not self.smoothness >= 0:
+            raise ValueError(f"smoothness must be non-negative, got {self.smoothness}")
+
+
+# Above this many grid nodes a hash grid stores the same detail in less memory and fewer updates.
+GRID_NODE_LIMIT = 2_000_000
+
+
+def choose_kind(config: FieldConfig, extent) -> str:
+    """The cheapest representation for a specimen of bounding-box ``extent`` (mm).
+
+    A dense grid is the cheapest per sample (one trilinear lookup) and per
+    update; it is chosen unless its node count at the requested resolution
+    exceeds :data:`GRID_NODE_LIMIT`, where a hash grid is used. The MLP is the
+    most expensive per sample and never chosen automatically.
+    """
+    if config.kind != "auto":
+        return config.kind
+    nodes = np.prod(grid_shape(config.resolution, extent))
+    return "grid" if nodes <= GRID_NODE_LIMIT else "hashgrid"
+
+
+def grid_shape(resolution, extent):
+    """``(nx, ny, nz)``: ``resolution`` nodes along the longest axis, at least 2 on each."""
+    extent = np.asarray(extent, dtype=np.float64)
+    spacing = extent.max() / (resolution - 1)
+    return tuple(int(max(2, np.ceil(e / spacing - 1e-9) + 1)) for e in extent)
+
+
+class TrainableField(StressField):
+    kind = ""
+
+    def __init__(self, config: FieldConfig, bbox_min, bbox_max, stress_scale):
+        self.config = config
+        self.bbox_min = np.asarray(bbox_min, dtype=np.float64)
+        self.bbox_max = np.asarray(bbox_max, dtype=np.float64)
+        if not np.all(self.bbox_max > self.bbox_min):
+            raise ValueError(f"field bounding box is empty: {self.bbox_min} .. {self.bbox_max}")
+        if not (np.isfinite(stress_scale) and stress_scale > 0):
+            raise ValueError(f"stress_scale must be a positive number of MPa, got {stress_scale}")
+        self.stress_scale = float(stress_scale)
+        self._scale = mi.ScalarVector3f(1.0 / (self.bbox_max - self.bbox_min))
+        self._offset = mi.ScalarVector3f(-self.bbox_min / (self.bbox_max - self.bbox_min))
+
+    def unit_coordinates(self, p):
+        """``p`` mapped to [0, 1]^3 over the bounding box."""
+        return dr.fma(mi.Point3f(p), self._scale, self._offset)
+
+    def eval(self, p):
+        xx, yy, yz, zx, xy = (self.stress_scale * c for c in self.deviatoric(p))
+        return xx, yy, -(xx + yy), yz, zx, xy
+
+    def deviatoric(self, p):
+        """The five stored components at ``p``, in units of ``stress_scale``."""
+        raise NotImplementedError
+
+    def parameters(self) -> dict:
+        raise NotImplementedError
+
+    def assign(self, values) -> None:
+        raise NotImplementedError
+
+    def regularization(self):
+        """A penalty added to the loss (None: none)."""
+        return None
+
+    def state(self) -> dict:
+        """Everything needed to rebuild the field, as NumPy arrays and plain values."""
+        return {"kind": self.kind, "config": asdict(self.config), "bbox_min": self.bbox_min,
+                "bbox_max": self.bbox_max, "stress_scale": self.stress_scale,
+                **{f"param.{name}": np.array(value) for name, value in self.parameters().items()}}
+
+    def load_parameters(self, state):
+        values = {}
+        for name, current in self.parameters().items():
+            stored = np.asarray(state[f"param.{name}"], dtype=np.float32)
+            expected = tuple(current.shape)
+            if stored.shape != expected:
+                raise ValueError(f"stored parameter '{name}' has shape {stored.shape}, the field expects {expected}")
+            values[name] = type(current)(stored)
+        self.assign(values)
+
+    def __repr__(self):
+        return (f"{type(self).__name__}({self.describe()}, bbox {self.bbox_min.round(3).tolist()} .. "
+                f"{self.bbox_max.round(3).tolist()} mm, scale {self.stress_scale:.3g} MPa)")
+
+    def describe(self):
+        return self.kind
+
+    def parameter_count(self):
+        return int(sum(np.prod(v.shape) for v in self.parameters().values()))
+
+
+class DeviatoricGrid(TrainableField):
+    """Five components on a regular nodal grid over the bounding box, trilinear (a 5-channel ``mi.Texture3f``)."""
+    kind = "grid"
+
+    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+        super().__init__(config, bbox_min, bbox_max, stress_scale)
+        self.shape = grid_shape(config.resolution, self.bbox_max - self.bbox_min)      # (nx, ny, nz)
+        nx, ny, nz = self.shape
+        self.texture = mi.Texture3f(mi.TensorXf(np.zeros((nz, ny, nx, 5), dtype=np.float32)),
+                                    filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
+        # Nodes sit on the bounding box faces: map [0, 1] onto the first/last texel centres.
+        nodes = mi.ScalarVector3f(nx, ny, nz)
+        self._texel_scale = (nodes - 1) / nodes
+        self._texel_offset = 0.5 / nodes
+        self._pairs = None
+
+    def deviatoric(self, p):
+        uvw = dr.fma(self.unit_coordinates(p), self._texel_scale, self._texel_offset)
+        return tuple(self.texture.eval(uvw))
+
+    def parameters(self):
+        return {"grid": self.texture.tensor()}
+
+    def assign(self, values):
+        self.texture.set_tensor(values["grid"])
+
+    def regularization(self):
+        if self.config.smoothness == 0:
+            return None
+        if self._pairs is None:
+            self._pairs = _neighbour_pairs(self.shape)
+        values = self.texture.tensor().array
+        first, second = self._pairs
+        difference = dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)
+        return self.config.smoothness * dr.mean(dr.square(difference))
+
+    def describe(self):
+        return f"grid {'x'.join(map(str, self.shape))}"
+
+
+def _neighbour_pairs(shape):
+    """Flat indices of every pair of neighbouring nodes (all five channels) in a (z, y, x, 5) array."""
+    nx, ny, nz = shape
+    index = np.arange(nz * ny * nx * 5, dtype=np.uint32).reshape(nz, ny, nx, 5)
+    first, second = [], []
+    for axis in range(3):
+        count = index.shape[axis]
+        first.append(np.take(index, range(count - 1), axis=axis).ravel())
+        second.append(np.take(index, range(1, count), axis=axis).ravel())
+    return mi.UInt32(np.concatenate(first)), mi.UInt32(np.concatenate(second))
+
+
+class _SiLU:
+    """``x sigmoid(x) = h + h tanh(h)`` with ``h = x / 2``: the NeST activation (``drjit.nn`` has none)."""
+    DRJIT_STRUCT = {}
+
+    def __call__(self, x):
+        half = x * 0.5
+        return half + half * dr.tanh(half)
+
+
+def _network(config, inputs, hidden_layers, encoding=None):
+    import drjit.nn as nn
+
+    class SiLU(_SiLU, nn.Module):
+        pass
+
+    layers = [] if encoding is None else [encoding]
+    for _ in range(hidden_layers):
+        layers += [nn.Linear(-1, config.width, bias=True), SiLU()]
+    layers.append(nn.Linear(-1, 5, bias=True))
+    net = nn.Sequential(*layers).alloc(mi.TensorXf, inputs, rng=dr.rng(seed=config.seed))
+    return nn.pack(net, layout="training")
+
+
+class _NeuralField(TrainableField):
+    def _evaluate(self, features):
+        import drjit.nn as nn
+        return tuple(mi.Float(x) for x in self.net(nn.CoopVec(*features)))
+
+    def assign(self, values):
+        self.net["weights"] = values["weights"]
+
+
+class MLPField(_NeuralField):
+    """The NeST field: sinusoidal encoding of the position, SiLU MLP, five outputs."""
+    kind = "mlp"
+
+    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+        super().__init__(config, bbox_min, bbox_max, stress_scale)
+        import drjit.nn as nn
+        # Shifted octaves keep the encoding's extrema off a common lattice.
+        self.net = _network(config, 3, config.layers, nn.SinEncode(config.octaves, shift=0.25))
+
+    def deviatoric(self, p):
+        return self._evaluate(self.unit_coordinates(p))
+
+    def parameters(self):
+        return {"weights": self.net["weights"]}
+
+    def describe(self):
+        return f"mlp {self.config.layers}x{self.config.width}, {self.config.octaves} octaves"
+
+
+class HashGridField(_NeuralField):
+    """Multi-resolution hash encoding (``drjit.nn.HashGridEncoding``) and a one-layer SiLU decoder."""
+    kind = "hashgrid"
+
+    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+        super().__init__(config, bbox_min, bbox_max, stress_scale)
+        import drjit.nn as nn
+        self.encoding = nn.HashGridEncoding(
+            mi.Float, 3, n_levels=config.levels, n_features_per_level=config.features_per_level,
+            hashmap_size=config.hashmap_size, base_resolution=config.base_resolution,
+            per_level_scale=config.level_scale, init_scale=1e-2, rng=dr.rng(seed=config.seed + 1))
+        self.net = _network(config, config.levels * config.features_per_level, 1)
+
+    def deviatoric(self, p):
+        return self._evaluate(self.encoding(self.unit_coordinates(p)))
+
+    def parameters(self):
+        return {"encoding": self.encoding.data, "weights": self.net["weights"]}
+
+    def assign(self, values):
+        self.encoding.data = values["encoding"]
+        super().assign(values)
+
+    def describe(self):
+        return (f"hashgrid {self.config.levels} levels x {self.config.features_per_level} features, "
+                f"2^{int(np.log2(self.config.hashmap_size))} entries")
+
+
+REPRESENTATIONS = {"grid": DeviatoricGrid, "hashgrid": HashGridField, "mlp": MLPField}
+
+
+def make_field(config: FieldConfig, bbox_min, bbox_max, stress_scale) -> TrainableField:
+    kind = choose_kind(config, np.asarray(bbox_max) - np.asarray(bbox_min))
+    return REPRESENTATIONS[kind](config, bbox_min, bbox_max, stress_scale)
+
+
+def field_from_state(state) -> TrainableField:
+    """Rebuild a field saved by :meth:`TrainableField.state`."""
+    kind = str(state["kind"])
+    if kind not in REPRESENTATIONS:
+        raise ValueError(f"unknown field kind '{kind}' in saved state")
+    config = state["config"]
+    if not isinstance(config, FieldConfig):
+        config = FieldConfig(**{k: (v.item() if hasattr(v, "item") else v) for k, v in dict(config).items()})
+    field = REPRESENTATIONS[kind](config, state["bbox_min"], state["bbox_max"], float(state["stress_scale"]))
+    field.load_parameters(state)
+    return field
+
+
+def deviatoric_part(stress):
+    """Deviatoric part of ``(..., 6)`` stress arrays in 3D-TSV order (NumPy)."""
+    stress = np.asarray(stress, dtype=np.float64)
+    mean = stress[..., :3].sum(axis=-1, keepdims=True) / 3.0
+    return np.concatenate([stress[..., :3] - mean, stress[..., 3:]], axis=-1)
+
+
+def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
+    """``field`` resampled onto a grid of ``resolution`` nodes along the longest axis (coarse to fine)."""
+    config = FieldConfig(**{**asdict(field.config), "kind": "grid", "resolution": int(resolution)})
+    finer = DeviatoricGrid(config, field.bbox_min, field.bbox_max, field.stress_scale)
+    nx, ny, nz = finer.shape
+    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(field.bbox_min, field.bbox_max, (nx, ny, nz))]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    nodes = mi.Point3f(np.stack([x.ravel(), y.ravel(), z.ravel()]).astype(np.float32))
+    with dr.suspend_grad():
+        values = np.stack([np.array(c) for c in field.deviatoric(nodes)], axis=-1)
+    finer.assign({"grid": mi.TensorXf(values.reshape(nz, ny, nx, 5).astype(np.float32))})
+    return finer

@@ -1,0 +1,96 @@
+"""How good a reconstruction is: stress errors over the occupied volume, PSNR of held-out views."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mitsuba as mi
+import numpy as np
+
+from .. import occupancy
+from .fields import deviatoric_part
+
+# Points per axis of the evaluation lattice along the longest side of the specimen.
+EVALUATION_POINTS = 40
+
+
+@dataclass
+class StressErrors:
+    deviatoric: float             # ||dev(s) - dev(s_true)|| / ||dev(s_true)|| over the occupied volume
+    principal_difference: float   # the same for sigma_max - sigma_min (the 3D principal stress difference)
+    points: int
+
+    def describe(self):
+        return (f"deviatoric stress error {100 * self.deviatoric:.1f}%, principal stress difference error "
+                f"{100 * self.principal_difference:.1f}% ({self.points} points inside the specimen)")
+
+
+def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
+    """A lattice over the specimens' bounding box, cell centres, kept where inside a specimen."""
+    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
+    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    spacing = (high - low).max() / points_per_axis
+    axes = [np.arange(lo + 0.5 * spacing, hi, spacing) for lo, hi in zip(low, high)]
+    lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return lattice[occupancy.inside(scene, shapes, lattice)]
+
+
+def sample(field, points):
+    """``(N, 6)`` stress (MPa) of a field at NumPy points."""
+    points = np.asarray(points, dtype=np.float32)
+    values = field.eval(mi.Point3f(points.T))
+    return np.stack([np.broadcast_to(np.array(v, dtype=np.float64), (len(points),)) for v in values], axis=-1)
+
+
+def _tensor_norm(s6):
+    """Frobenius norm of symmetric tensors in 6-vector form (shear components count twice)."""
+    return np.sqrt((s6[..., :3] ** 2).sum(-1) + 2.0 * (s6[..., 3:] ** 2).sum(-1))
+
+
+def principal_difference(s6):
+    """``sigma_max - sigma_min`` of ``(N, 6)`` tensors."""
+    xx, yy, zz, yz, zx, xy = np.moveaxis(np.asarray(s6, dtype=np.float64), -1, 0)
+    matrices = np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1), np.stack([zx, yz, zz], -1)], -2)
+    eigenvalues = np.linalg.eigvalsh(matrices)
+    return eigenvalues[..., -1] - eigenvalues[..., 0]
+
+
+def stress_errors(field, truth, points) -> StressErrors:
+    """Relative errors of ``field`` against ``truth`` at ``points`` (inside the specimen)."""
+    if len(points) == 0:
+        raise ValueError("no evaluation point lies inside the specimen")
+    estimate, reference = deviatoric_part(sample(field, points)), deviatoric_part(sample(truth, points))
+    scale = np.sqrt((_tensor_norm(reference) ** 2).sum())
+    if scale == 0:
+        raise ValueError("the true stress field is zero inside the specimen: relative errors are undefined")
+    deviatoric = np.sqrt((_tensor_norm(estimate - reference) ** 2).sum()) / scale
+    true_difference = principal_difference(reference)
+    difference = np.linalg.norm(principal_difference(estimate) - true_difference) / np.linalg.norm(true_difference)
+    return StressErrors(float(deviatoric), float(difference), len(points))
+
+
+def representation_floor(field, truth, points):
+    """The deviatoric error of ``truth`` itself sampled into a grid like ``field``: the best it can reach.
+
+    Only for grids (None otherwise): singular fields (point loads) keep even a
+    perfect reconstruction far from zero error at a finite resolution.
+    """
+    if getattr(field, "kind", None) != "grid":
+        return None
+    from .fields import DeviatoricGrid
+    copy = DeviatoricGrid(field.config, field.bbox_min, field.bbox_max, field.stress_scale)
+    nx, ny, nz = copy.shape
+    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(copy.bbox_min, copy.bbox_max, (nx, ny, nz))]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    nodes = deviatoric_part(sample(truth, np.stack([x.ravel(), y.ravel(), z.ravel()], axis=-1)))
+    stored = nodes[:, [0, 1, 3, 4, 5]] / copy.stress_scale
+    copy.assign({"grid": mi.TensorXf(stored.reshape(nz, ny, nx, 5).astype(np.float32))})
+    return stress_errors(copy, truth, points).deviatoric
+
+
+def psnr(predicted, measured, mask=None):
+    """Peak signal-to-noise ratio (dB) of normalised intensities (peak 1) over ``mask``."""
+    predicted, measured = np.asarray(predicted, np.float64), np.asarray(measured, np.float64)
+    if mask is not None:
+        predicted, measured = predicted[mask], measured[mask]
+    mse = np.mean((predicted - measured) ** 2)
+    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))

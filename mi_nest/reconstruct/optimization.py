@@ -1,0 +1,539 @@
+"""``mi_nest.optimize``: NeST tomography by gradient descent through the photoelastic integrator.
+
+Each iteration draws a batch of pixels across training rotations, marches
+their rays through the trainable field (no derivatives kept), takes the L1
+loss of the 16 normalised intensities, and replays the march backwards to push
+the loss gradient into the field (constant memory, see
+``PhotoelasticIntegrator.backpropagate_rays``); Adam updates the field. Joint
+phase unwrapping and tensor tomography happen together: nothing is unwrapped
+per view.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..dataset import Dataset
+from ..dataset.simulate import specimen_shapes
+from ..io.atomic import atomic_path
+from ..physics import MEASUREMENTS
+from ..render import load_scene
+from . import metrics
+from .fields import (FieldConfig, TrainableField, choose_kind, field_from_state, grid_shape, make_field,
+                     refined)
+from .rays import ViewRays, device_array
+
+FORWARD_MODELS = ("product", "magnus4", "linear")
+CHECKPOINT = "checkpoint.npz"
+# A gradient this many times the median of the recent ones counts as exploding.
+EXPLODING_FACTOR = 1e4
+
+
+@dataclass(frozen=True)
+class OptimizeConfig:
+    iterations: int = 600
+    batch_size: int = 4096           # rays per iteration
+    views_per_batch: int = 16        # rotations each batch draws its rays from
+    learning_rate: float = 3e-2      # in units of the stress scale per step
+    final_learning_rate: float = 3e-3
+    method: str = "product"          # forward model: product (NeST-general), magnus4, linear (NeST-approx)
+    step_size: float | None = None   # mm; None: half the grid spacing, or the bounding box / 64
+    coarse_to_fine: bool = True      # grids: start at a quarter of the resolution, double twice
+    path_curriculum: float = 0.5     # share of the iterations over which the longest admitted path grows
+    mask: str | None = "mask.dolp"   # pixels that enter the loss (None: all)
+    pixel_samples: int | None = None  # rays averaged per pixel, as the camera integrates; None: the dataset's spp (<= 4)
+    checkpoint_every: int = 100
+    evaluate_views: int = 16         # held-out rotations rendered for the PSNR
+    seed: int = 0
+    field: FieldConfig = field(default_factory=FieldConfig)
+
+    def __post_init__(self):
+        if self.method not in FORWARD_MODELS:
+            raise ValueError(f"method must be one of {FORWARD_MODELS}, got '{self.method}'")
+        if self.pixel_samples is not None and int(self.pixel_samples) < 1:
+            raise ValueError(f"'pixel_samples' must be a positive integer, got {self.pixel_samples}")
+        for name in ("iterations", "batch_size", "views_per_batch", "checkpoint_every"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"'{name}' must be a positive integer, got {getattr(self, name)}")
+        for name in ("learning_rate", "final_learning_rate"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"'{name}' must be positive, got {value}")
+        if not 0 <= self.path_curriculum <= 1:
+            raise ValueError(f"'path_curriculum' is a share of the iterations in [0, 1], got {self.path_curriculum}")
+        if self.step_size is not None and not (math.isfinite(self.step_size) and self.step_size > 0):
+            raise ValueError(f"'step_size' must be a positive length in mm, got {self.step_size}")
+
+    @classmethod
+    def from_options(cls, **options):
+        """A config from flat keyword options: its own fields and :class:`FieldConfig`'s (``kind``...)."""
+        own = {f.name for f in fields(cls)} - {"field"}
+        field_names = {f.name for f in fields(FieldConfig)}
+        base = options.pop("config", None) or cls()
+        field_config = options.pop("field", None) or base.field
+        unknown = sorted(set(options) - own - field_names)
+        if unknown:
+            raise ValueError(f"unknown option(s) {unknown}; optimize accepts {sorted(own)} and field options "
+                             f"{sorted(field_names)}")
+        field_config = replace(field_config, **{k: v for k, v in options.items() if k in field_names})
+        return replace(base, field=field_config, **{k: v for k, v in options.items() if k in own})
+
+
+class DivergenceError(RuntimeError):
+    """The optimisation produced a non-finite loss or an exploding gradient."""
+
+
+@dataclass
+class Reconstruction:
+    """The result: the field, its loss history and (for simulated data) its errors."""
+    field: TrainableField
+    config: OptimizeConfig
+    history: list                    # {iteration, loss, learning_rate, seconds}
+    metrics: dict
+    seconds: float
+
+    def describe(self):
+        lines = [f"{self.field!r}: {self.field.parameter_count()} parameters, {len(self.history)} iterations in "
+                 f"{self.seconds:.1f} s, final loss {self.history[-1]['loss']:.4f}" if self.history else ""]
+        if "deviatoric_error" in self.metrics:
+            floor = self.metrics.get("representation_floor")
+            lines.append(f"relative deviatoric stress error {100 * self.metrics['deviatoric_error']:.2f}%"
+                         + ("" if floor is None else f" (the truth sampled on this grid: {100 * floor:.2f}%)")
+                         + f", principal stress difference error {100 * self.metrics['principal_difference_error']:.2f}%")
+        if "test_psnr" in self.metrics:
+            lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
+                         "rotations")
+        return "\n".join(line for line in lines if line)
+
+    def save(self, directory):
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(directory / "field.npz", ".npz") as tmp:
+            _save_npz(tmp, self.field.state())
+        record = {"config": _plain_config(self.config), "metrics": self.metrics, "seconds": self.seconds,
+                  "field": self.field.describe(), "parameters": self.field.parameter_count(),
+                  "history": self.history}
+        with atomic_path(directory / "reconstruction.json", ".json") as tmp:
+            Path(tmp).write_text(json.dumps(record, indent=1))
+        return directory
+
+    @classmethod
+    def load(cls, directory):
+        directory = Path(directory)
+        for name in ("field.npz", "reconstruction.json"):
+            if not (directory / name).is_file():
+                raise FileNotFoundError(f"{directory} is not a reconstruction: {name} missing")
+        record = json.loads((directory / "reconstruction.json").read_text())
+        config = record["config"]
+        config = OptimizeConfig(**{**config, "field": FieldConfig(**config["field"])})
+        return cls(load_field(directory / "field.npz"), config, record["history"], record["metrics"],
+                   record["seconds"])
+
+    def integrator(self):
+        return make_integrator(self.config, self.field)
+
+    def render(self, scene, **options):
+        """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""
+        from ..render import render
+        with with_field(scene, self.field):
+            return render(scene, **options)
+
+
+def make_integrator(config, stress_field):
+    """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid)."""
+    step = config.step_size
+    if step is None:
+        extent = stress_field.bbox_max - stress_field.bbox_min
+        if stress_field.kind == "grid":
+            step = 0.5 * extent.max() / (max(grid_shape(config.field.resolution, extent)) - 1)
+        else:
+            step = float(extent.max()) / 64.0
+    return mi.load_dict({"type": "photoelastic", "method": config.method, "step_size": float(step), "jitter": True})
+
+
+def load_field(path) -> TrainableField:
+    with np.load(path, allow_pickle=False) as data:
+        state = {key: data[key] for key in data.files}
+    state["config"] = json.loads(str(state["config"]))
+    return field_from_state(state)
+
+
+def _save_npz(path, state):
+    np.savez(path, **{k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in state.items()})
+
+
+def _plain_config(config):
+    return json.loads(json.dumps(asdict(config)))
+
+
+def _media(scene):
+    return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
+
+
+def _give_field(scene, stress_field):
+    for medium in _media(scene):
+        medium.field = stress_field
+
+
+@contextlib.contextmanager
+def with_field(scene, stress_field):
+    """Temporarily give every specimen of ``scene`` the stress field ``stress_field``."""
+    previous = [(medium, medium.field) for medium in _media(scene)]
+    _give_field(scene, stress_field)
+    try:
+        yield
+    finally:
+        for medium, original in previous:
+            medium.field = original
+
+
+def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="scene", **options):
+    """Reconstruct the stress field of ``scene``'s specimens from ``dataset``.
+
+    ``scene`` (an ``mi.Scene`` or a scene file) gives the specimen shapes (the
+    known occupancy), their material and the camera; its own stress field is
+    replaced during the optimisation and, with ``truth="scene"``, serves as the
+    ground truth of the error metrics (pass ``truth=None`` for real captures,
+    or any ``StressField``). ``options`` are :class:`OptimizeConfig` and
+    :class:`FieldConfig` fields (``iterations=300, kind="mlp"``...).
+
+    With ``output``, checkpoints go to ``output/checkpoint.npz`` every
+    ``checkpoint_every`` iterations (and on interruption), and a rerun resumes
+    from there; the result is saved in ``output`` as well.
+    """
+    config = OptimizeConfig.from_options(**options)
+    if not isinstance(scene, mi.Scene):
+        scene = load_scene(scene)
+    if not isinstance(dataset, Dataset):
+        dataset = Dataset(dataset)
+    shapes = specimen_shapes(scene)
+    media = _media(scene)
+    _check_material(media, dataset)
+    truth_field = media[0].field if truth == "scene" else truth
+    if truth == "scene" and len({id(m.field) for m in media}) > 1:
+        truth_field = None
+
+    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
+    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    scale = stress_scale(media, low, high)
+    run = _Run(scene, dataset, config, low, high, scale, output, progress)
+    if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
+        run.restore(Path(output) / CHECKPOINT)
+    with with_field(scene, run.field):
+        run.loop()
+    result = run.result()
+    with with_field(scene, result.field):
+        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
+                                       config.evaluate_views, config.mask, shapes))
+    if output is not None:
+        result.save(output)
+    return result
+
+
+def stress_scale(media, low, high):
+    """The stress (MPa) that gives about one fringe across the specimen: fields are stored in its units."""
+    length = float(np.prod(high - low)) ** (1.0 / 3.0)
+    return max(m.fringe_value for m in media) / length
+
+
+def _check_material(media, dataset):
+    for name, key in (("wavelength", "wavelength"), ("stress_optic_coefficient", "stress_optic_coefficient")):
+        recorded = dataset.index.get(key)
+        if recorded is None:
+            continue
+        ours = sorted({round(getattr(m, name), 6) for m in media})
+        if ours != sorted(round(float(x), 6) for x in recorded):
+            raise ValueError(f"the scene's {name} {ours} differs from the dataset's {recorded}: reconstruct with "
+                             "the material the data was measured with")
+
+
+class _Run:
+    """The state of one optimisation: field, optimiser, random state, history; checkpoints."""
+
+    def __init__(self, scene, dataset, config, low, high, scale, output, progress):
+        self.scene, self.dataset, self.config = scene, dataset, config
+        self.output = None if output is None else Path(output)
+        self.progress = progress
+        self.kind = choose_kind(config.field, high - low)
+        self.stages = self._stages()
+        self.field = make_field(replace(config.field, kind=self.kind, resolution=self.stages[0][1]), low, high,
+                                scale)
+        self.view_rays = ViewRays(scene, dataset)
+        self.pixel_samples = int(config.pixel_samples or min(4, int(dataset.index.get("spp", 1))))
+        self.rng = np.random.default_rng(config.seed)
+        self.iteration = 0
+        self.history = []
+        self.seconds = 0.0
+        self.gradient_norms = []
+        self.optimizer = self._optimizer()
+        self.last_good = None
+
+    def _stages(self):
+        """``[(first iteration, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
+        resolution = self.config.field.resolution
+        if self.kind != "grid" or not self.config.coarse_to_fine:
+            return [(0, resolution)]
+        resolutions = [r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution]
+        resolutions = sorted(set(resolutions)) + [resolution]
+        # The finest stage gets half the iterations: it has the most unknowns.
+        shares = [0.5 / (len(resolutions) - 1)] * (len(resolutions) - 1) + [0.5] if len(resolutions) > 1 else [1.0]
+        starts = np.concatenate([[0], np.cumsum(shares)[:-1]]) * self.config.iterations
+        return [(int(round(s)), r) for s, r in zip(starts, resolutions)]
+
+    def _optimizer(self):
+        return dr.opt.Adam(lr=self.config.learning_rate, params=self.field.parameters())
+
+    def integrator(self):
+        return make_integrator(self.config, self.field)
+
+    def learning_rate(self, iteration):
+        fraction = iteration / max(1, self.config.iterations - 1)
+        return self.config.learning_rate * (self.config.final_learning_rate / self.config.learning_rate) ** fraction
+
+    def loop(self):
+        config = self.config
+        integrator = self.integrator()
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=config.iterations, initial=self.iteration, desc=f"reconstruct ({self.field.kind})",
+                       unit="it", mininterval=0.5)
+        try:
+            while self.iteration < config.iterations:
+                self._refine_if_due()
+                start = time.perf_counter()
+                loss = self.step(integrator)
+                elapsed = time.perf_counter() - start
+                self.seconds += elapsed
+                self.history.append({"iteration": self.iteration, "loss": loss,
+                                     "learning_rate": self.learning_rate(self.iteration),
+                                     "seconds": round(self.seconds, 4)})
+                self.iteration += 1
+                if self.iteration % config.checkpoint_every == 0 or self.iteration == config.iterations:
+                    self.checkpoint()
+                if bar is not None:
+                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{config.batch_size / elapsed:.3g}",
+                                    refresh=False)
+                    bar.update()
+        except KeyboardInterrupt:
+            self.checkpoint()
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+
+    def _refine_if_due(self):
+        for start, resolution in self.stages[1:]:
+            if self.iteration == start and self.field.kind == "grid" and \
+                    self.field.config.resolution != resolution:
+                self.field = refined(self.field, resolution)
+                _give_field(self.scene, self.field)
+                self.optimizer = self._optimizer()
+
+    def step(self, integrator):
+        config = self.config
+        positions, rows, columns, targets = self.dataset.ray_batch(
+            config.batch_size, self.rng, views_per_batch=config.views_per_batch, mask=config.mask)
+        samples = self.pixel_samples
+        rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
+                                          jitter=stratified(len(rows), samples, self.rng))
+        self.optimizer.set_learning_rate(self.learning_rate(self.iteration))
+        self.field.assign(self.optimizer)
+        seed = self.config.seed * 1_000_003 + self.iteration
+        state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
+        admitted = None
+        limit = self.path_limit()
+        if limit is not None:
+            # Opaque: a literal limit would rebuild the kernel every iteration.
+            admitted = dr.select(dr.block_sum(length, samples) <= dr.opaque(mi.Float, samples * limit), 1.0, 0.0)
+        with dr.resume_grad():
+            leaf = tuple(mi.Float(x) for x in state)
+            dr.enable_grad(leaf)
+            loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted)
+            total = loss
+            penalty = self.field.regularization()
+            if penalty is not None:
+                total = total + penalty
+            dr.backward(total)
+            state_grad = dr.grad(leaf)
+        integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed)
+        value = float(total[0])
+        self._check_divergence(value)
+        self.optimizer.step()
+        return value
+
+    def path_limit(self):
+        """The longest path (mm) whose pixels enter the loss now; None: all.
+
+        Retardance, and with it phase wrapping, grows with the path through the
+        specimen. Fitting short paths first (from the box's thinnest extent up to
+        its diagonal over the first ``path_curriculum`` of the iterations) gives
+        the longer ones a field that is already nearly right, instead of the
+        wrapped local minima a fit of all paths at once falls into.
+        """
+        span = self.config.path_curriculum * self.config.iterations
+        if self.iteration >= span:
+            return None
+        extent = self.field.bbox_max - self.field.bbox_min
+        shortest, longest = float(extent.min()), float(np.linalg.norm(extent))
+        return shortest * (longest / shortest) ** (self.iteration / span)
+
+    def _check_divergence(self, loss):
+        norm = math.sqrt(sum(float(dr.sum(dr.square(_flat(dr.grad(self.optimizer[k]))))[0])
+                             for k in self.optimizer.keys()))
+        reason = None
+        if not math.isfinite(loss):
+            reason = f"the loss is {loss}"
+        elif not math.isfinite(norm):
+            reason = f"the gradient norm is {norm}"
+        elif len(self.gradient_norms) >= 20 and norm > EXPLODING_FACTOR * np.median(self.gradient_norms[-20:]):
+            reason = (f"the gradient norm {norm:.3g} is {norm / np.median(self.gradient_norms[-20:]):.3g} times the "
+                      "recent median (exploding)")
+        if reason is None:
+            self.gradient_norms.append(norm)
+            return
+        kept = "no checkpoint was written yet"
+        if self.last_good is not None:
+            kept = f"the last good checkpoint (iteration {self.last_good}) is kept"
+            if self.output is not None:
+                kept += f" in {self.output / CHECKPOINT}"
+        raise DivergenceError(f"optimisation diverged at iteration {self.iteration}: {reason}; {kept}. Lower the "
+                              "learning_rate or the step_size")
+
+    def checkpoint(self):
+        self.last_good = self.iteration
+        if self.output is None:
+            return
+        self.output.mkdir(parents=True, exist_ok=True)
+        state = {f"field.{k}": v for k, v in self.field.state().items()}
+        for name in self.optimizer.keys():
+            value, _, _, extra = self.optimizer.state[name]
+            t, m, v = extra[:3]
+            state[f"adam.{name}.t"] = np.array(t)
+            state[f"adam.{name}.m"] = np.array(m)
+            state[f"adam.{name}.v"] = np.array(v)
+        state.update({"iteration": self.iteration, "seconds": self.seconds,
+                      "history": json.dumps(self.history), "rng": json.dumps(self.rng.bit_generator.state),
+                      "config": json.dumps(_plain_config(self.config)),
+                      "dataset": str(self.dataset.directory.resolve())})
+        with atomic_path(self.output / CHECKPOINT, ".npz") as tmp:
+            _save_npz(tmp, state)
+
+    def restore(self, path):
+        with np.load(path, allow_pickle=False) as data:
+            state = {key: data[key] for key in data.files}
+        if json.loads(str(state["config"])) != _plain_config(self.config) or \
+                str(state["dataset"]) != str(self.dataset.directory.resolve()):
+            raise ValueError(f"{path} is a checkpoint of another run (other options or dataset); choose another "
+                             "output directory, or pass resume=False to start over")
+        field_state = {k[len("field."):]: v for k, v in state.items() if k.startswith("field.")}
+        field_state["config"] = json.loads(str(field_state["config"]))
+        self.field = field_from_state(field_state)
+        self.optimizer = self._optimizer()
+        for name in self.optimizer.keys():
+            value, promoted, lr, extra = self.optimizer.state[name]
+            t, m, v = (type(x)(state[f"adam.{name}.{key}"]) for x, key in zip(extra[:3], "tmv"))
+            self.optimizer.state[name] = (value, promoted, lr, (t, m, v, *extra[3:]))
+        self.iteration = int(state["iteration"])
+        self.seconds = float(state["seconds"])
+        self.history = json.loads(str(state["history"]))
+        self.rng.bit_generator.state = json.loads(str(state["rng"]))
+        self.last_good = self.iteration
+
+    def result(self):
+        return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
+
+
+def _flat(values):
+    return values.array if isinstance(values, mi.TensorXf) else values
+
+
+def intensities(q):
+    """The 16 normalised intensities of the multi-axis polariscope, in dataset channel order."""
+    return [scope.intensity(q) for scope in MEASUREMENTS.values()]
+
+
+def l1_loss(q, targets, pixel_samples=1, weights=None):
+    """Mean absolute error of the 16 intensities against ``targets`` (N, 16).
+
+    ``q`` holds ``pixel_samples`` consecutive rays per target pixel; their
+    intensities are averaged first, as the camera integrates over its pixels.
+    ``weights`` (N, 0 or 1) selects the pixels that count.
+    """
+    targets = np.asarray(targets, dtype=np.float32)
+    total = 0.0
+    for channel, predicted in enumerate(intensities(q)):
+        if pixel_samples > 1:
+            predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
+        error = dr.abs(predicted - device_array(mi.Float, targets[:, channel]))
+        total = total + dr.sum(error if weights is None else error * weights)
+    count = len(targets) if weights is None else dr.maximum(dr.sum(weights), 1.0)
+    return total / (count * targets.shape[1])
+
+
+def stratified(pixels, samples, rng):
+    """``(pixels * samples, 2)`` positions in [0, 1)^2: one per cell of a near-square grid per pixel."""
+    columns = int(np.ceil(np.sqrt(samples)))
+    rows = int(np.ceil(samples / columns))
+    cells = np.arange(samples)
+    offsets = np.stack([cells % columns, cells // columns], axis=-1) / np.array([columns, rows])
+    jitter = rng.random((pixels, samples, 2)) / np.array([columns, rows])
+    return (offsets[None] + jitter).reshape(-1, 2)
+
+
+def predict_view(scene, view_rays, integrator, position):
+    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with the scene's current field."""
+    rays, right = view_rays.view(position)
+    state, blocked, _ = integrator.trace_rays(scene, rays, right)
+    return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked))], axis=-1)
+
+
+def _view_mask(dataset, position, mask):
+    if mask is None:
+        return None
+    return dataset.view(position, [mask])[mask].ravel() > 0.5
+
+
+def dataset_loss(scene, dataset, stress_field, integrator, split="train", mask="mask.dolp"):
+    """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
+    view_rays = ViewRays(scene, dataset)
+    total = count = 0.0
+    with with_field(scene, stress_field):
+        for position in dataset.split(split):
+            error = np.abs(predict_view(scene, view_rays, integrator, position)
+                           - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
+            inside = _view_mask(dataset, position, mask)
+            if inside is not None:
+                error = error[inside]
+            total += float(error.sum())
+            count += error.size
+    return total / max(count, 1)
+
+
+def evaluate(scene, dataset, stress_field, integrator, truth, views, mask, shapes):
+    """Errors against ``truth`` over the occupied volume, and PSNR of up to ``views`` held-out rotations."""
+    results = {}
+    if truth is not None:
+        points = metrics.evaluation_points(scene, shapes)
+        errors = metrics.stress_errors(stress_field, truth, points)
+        results.update(deviatoric_error=errors.deviatoric, principal_difference_error=errors.principal_difference,
+                       evaluation_points=errors.points)
+        floor = metrics.representation_floor(stress_field, truth, points)
+        if floor is not None:
+            results["representation_floor"] = floor
+    test = dataset.split("test")[:views]
+    if test:
+        view_rays = ViewRays(scene, dataset)
+        values = [metrics.psnr(predict_view(scene, view_rays, integrator, position),
+                               dataset.measurements(position).reshape(-1, len(MEASUREMENTS)),
+                               _view_mask(dataset, position, mask)) for position in test]
+        results.update(test_psnr=float(np.mean(values)), test_views=len(test))
+    return results

@@ -1,0 +1,85 @@
+"""Camera rays of dataset pixels: the scene's polariscope camera moved to each rotation's pose."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..dataset.simulate import pose, reference_pose
+from ..render import SceneError
+
+
+def device_array(kind, values):
+    """A Dr.Jit array of NumPy ``values`` (one row per component) in 64-byte aligned memory.
+
+    Dr.Jit adopts a NumPy buffer as it is, and compiles the kernels that read it
+    for its alignment: arrays from ordinary NumPy memory, aligned differently
+    from call to call, would make a training loop rebuild its kernels.
+    """
+    values = np.asarray(values, dtype=np.float32)
+    if values.ndim == 1:
+        return kind(_aligned(values))
+    return kind(*(_aligned(row) for row in values))
+
+
+def _aligned(row):
+    storage = np.empty(row.size + 16, dtype=np.float32)
+    start = (-storage.ctypes.data % 64) // 4
+    aligned = storage[start:start + row.size]
+    aligned[:] = row
+    return aligned
+
+
+class ViewRays:
+    """Rays through pixels of any rotation of ``dataset``, from the scene's camera model."""
+
+    def __init__(self, scene, dataset):
+        self.scene = scene
+        self.dataset = dataset
+        self.sensor = scene.sensors()[0]
+        if not hasattr(self.sensor, "camera"):
+            raise SceneError('reconstruction needs the scene\'s <sensor type="polariscope">')
+        size = tuple(int(x) for x in self.sensor.film().size())
+        if size != tuple(dataset.resolution):
+            raise SceneError(f"the scene's film is {size[0]}x{size[1]}, the dataset's images "
+                             f"{dataset.resolution[0]}x{dataset.resolution[1]}; load the scene with the dataset's "
+                             "resolution (e.g. res=...)")
+        self.reference = reference_pose(scene)
+
+    def rays(self, positions, rows, columns, jitter=None):
+        """``(mi.Ray3f, right)`` for pixels ``(rows, columns)`` of rotations ``positions``.
+
+        ``jitter`` (N, 2) in [0, 1) places each ray within its pixel (None: the
+        pixel centre); a pixel's measurement averages over its area, so random
+        positions fit it without bias. ``right`` is each ray's image-right
+        direction, which fixes the polariscope frame.
+        """
+        positions, rows, columns = (np.asarray(a) for a in (positions, rows, columns))
+        if jitter is None:
+            jitter = np.full((len(rows), 2), 0.5)
+        width, height = self.dataset.resolution
+        film = np.stack([(columns + jitter[:, 0]) / width, (rows + jitter[:, 1]) / height], axis=-1)
+        origins = np.empty((len(rows), 3))
+        directions = np.empty((len(rows), 3))
+        rights = np.empty((len(rows), 3))
+        try:
+            for position in np.unique(positions):
+                chosen = positions == position
+                to_world = self.dataset.to_world(int(position))
+                pose(self.scene, to_world)
+                ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film[chosen].T.astype(np.float32)),
+                                                mi.Point2f(0.5, 0.5))
+                origins[chosen] = np.array(ray.o).T
+                directions[chosen] = np.array(ray.d).T
+                right = to_world[:3, :3] @ np.array([-1.0, 0.0, 0.0])
+                rights[chosen] = right / np.linalg.norm(right)
+        finally:
+            pose(self.scene, self.reference)
+        return (mi.Ray3f(device_array(mi.Point3f, origins.T), device_array(mi.Vector3f, directions.T)),
+                device_array(mi.Vector3f, rights.T))
+
+    def view(self, position):
+        """Rays through every pixel centre of rotation ``position``, row-major."""
+        width, height = self.dataset.resolution
+        rows, columns = np.divmod(np.arange(width * height), width)
+        return self.rays(np.full(rows.shape, position), rows, columns)

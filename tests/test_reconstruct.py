@@ -1,0 +1,162 @@
+"""Reconstruction: trainable fields, metrics, the optimiser (smoke, resume, divergence, options), CLI."""
+import json
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.cli import main
+from mi_nest.dataset import SimulationSettings, simulate
+from mi_nest.fields import UniformField
+from mi_nest.reconstruct import DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, make_field, optimize
+from mi_nest.reconstruct import metrics
+from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
+from mi_nest.reconstruct.optimization import dataset_loss
+
+TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
+FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
+            pixel_samples=1)
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("data") / "disk"
+    with pytest.warns(RuntimeWarning):
+        simulate("disk_compression", directory, TINY, progress=False, defines={"load": 200})
+    return directory
+
+
+def _scene():
+    return mi_nest.load_scene("disk_compression", res=8, load=200)
+
+
+@pytest.mark.parametrize("kind", ["grid", "hashgrid", "mlp"])
+def test_fields_are_trace_free_and_survive_a_save(kind, tmp_path):
+    config = FieldConfig(kind=kind, resolution=5, levels=2, hashmap_size=256, width=8, layers=1, octaves=2)
+    field = make_field(config, (-1, -2, -3), (1, 2, 3), 2.5)
+    rng = np.random.default_rng(0)
+    field.assign({n: type(v)(rng.normal(size=v.shape).astype(np.float32)) for n, v in field.parameters().items()})
+    points = rng.uniform(-1, 1, (50, 3)) * [1, 2, 3]
+    values = metrics.sample(field, points)
+    np.testing.assert_allclose(values[:, 0] + values[:, 1] + values[:, 2], 0, atol=1e-5 * np.abs(values).max())
+    result = Reconstruction(field, OptimizeConfig(field=config), [{"iteration": 0, "loss": 1.0}], {}, 0.0)
+    loaded = Reconstruction.load(result.save(tmp_path / kind))
+    np.testing.assert_array_equal(metrics.sample(loaded.field, points), values)
+    assert loaded.field.describe() == field.describe()
+
+
+def test_auto_picks_the_grid_until_it_grows_too_large():
+    assert choose_kind(FieldConfig(resolution=64), (40, 40, 6)) == "grid"
+    assert choose_kind(FieldConfig(resolution=256), (40, 40, 40)) == "hashgrid"
+    assert choose_kind(FieldConfig(kind="mlp"), (1, 1, 1)) == "mlp"
+    assert grid_shape(5, (4.0, 2.0, 1.0)) == (5, 3, 2)
+
+
+def test_refining_a_grid_keeps_a_linear_field():
+    field = make_field(FieldConfig(kind="grid", resolution=3), (0, 0, 0), (2, 2, 2), 1.0)
+    nodes = np.stack(np.meshgrid(*[np.linspace(0, 2, 3)] * 3, indexing="ij"), -1)      # x, y, z
+    linear = (0.3 * nodes[..., 0] - 0.2 * nodes[..., 1] + 0.1 * nodes[..., 2]).transpose(2, 1, 0)
+    field.assign({"grid": mi.TensorXf(np.repeat(linear[..., None], 5, -1).astype(np.float32))})
+    finer = refined(field, 5)
+    points = np.random.default_rng(1).uniform(0, 2, (40, 3))
+    np.testing.assert_allclose(metrics.sample(finer, points), metrics.sample(field, points), atol=1e-5)
+
+
+def test_stress_errors_are_relative_and_ignore_the_mean_stress():
+    truth = UniformField(xx=3.0, yy=-1.0, xy=0.5, yz=0.2)
+    points = np.zeros((4, 3))
+    assert metrics.stress_errors(truth, truth, points).deviatoric == 0
+    shifted = UniformField(xx=5.0, yy=1.0, zz=2.0, xy=0.5, yz=0.2)         # plus 2 MPa hydrostatic
+    assert metrics.stress_errors(shifted, truth, points).deviatoric == pytest.approx(0, abs=1e-7)
+    scaled = UniformField(xx=3.3, yy=-1.1, xy=0.55, yz=0.22)
+    errors = metrics.stress_errors(scaled, truth, points)
+    assert errors.deviatoric == pytest.approx(0.1, rel=1e-5)
+    assert errors.principal_difference == pytest.approx(0.1, rel=1e-5)
+    assert metrics.psnr(np.full(4, 0.5), np.full(4, 0.6)) == pytest.approx(20.0)
+    with pytest.raises(ValueError, match="zero"):
+        metrics.stress_errors(truth, UniformField(), points)
+
+
+def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
+    scene = _scene()
+    result = optimize(scene, tiny_dataset, output=tmp_path / "run", progress=False, kind="grid", **FAST)
+    dataset = mi_nest.Dataset(tiny_dataset)
+    start = make_field(result.field.config, result.field.bbox_min, result.field.bbox_max, result.field.stress_scale)
+    integrator = mi.load_dict({"type": "photoelastic", "step_size": 1.0})
+    assert dataset_loss(scene, dataset, result.field, integrator) < dataset_loss(scene, dataset, start, integrator)
+    assert len(result.history) == 3 and np.isfinite(result.metrics["deviatoric_error"])
+    assert 0 < result.metrics["test_psnr"] < 100
+    saved = json.loads((tmp_path / "run" / "reconstruction.json").read_text())
+    assert saved["metrics"]["deviatoric_error"] == result.metrics["deviatoric_error"]
+    # The scene gets its own field back.
+    assert type(scene.shapes()[0].interior_medium().field).__name__ == "DiskCompressionField"
+
+
+def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, monkeypatch):
+    options = {**FAST, "iterations": 4, "checkpoint_every": 1, "kind": "grid"}
+    whole = optimize(_scene(), tiny_dataset, output=tmp_path / "whole", progress=False, **options)
+
+    from mi_nest.reconstruct import optimization as module
+    original = module._Run.step
+
+    def interrupted(self, integrator):
+        if self.iteration == 2:
+            raise KeyboardInterrupt
+        return original(self, integrator)
+
+    monkeypatch.setattr(module._Run, "step", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
+    monkeypatch.setattr(module._Run, "step", original)
+    resumed = optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
+    assert [h["iteration"] for h in resumed.history] == [0, 1, 2, 3]
+    np.testing.assert_allclose(np.array(resumed.field.parameters()["grid"]), np.array(whole.field.parameters()["grid"]),
+                               atol=1e-5)
+    with pytest.raises(ValueError, match="another run"):
+        optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **{**options, "iterations": 5})
+
+
+def test_divergence_is_reported_with_the_last_good_checkpoint(tiny_dataset, tmp_path, monkeypatch):
+    calls = []
+    original = mi_nest.Dataset.ray_batch
+
+    def corrupt_after_two(self, *args, **kwargs):
+        positions, rows, columns, targets = original(self, *args, **kwargs)
+        calls.append(1)
+        if len(calls) > 2:
+            targets = np.full_like(targets, np.nan)
+        return positions, rows, columns, targets
+
+    monkeypatch.setattr(mi_nest.Dataset, "ray_batch", corrupt_after_two)
+    with pytest.raises(DivergenceError, match=r"iteration 2: the loss is nan; the last good checkpoint \(iteration 2\)"):
+        optimize(_scene(), tiny_dataset, output=tmp_path / "run", progress=False,
+                 **{**FAST, "iterations": 5, "checkpoint_every": 1, "kind": "grid"})
+    assert (tmp_path / "run" / "checkpoint.npz").is_file()
+
+
+def test_bad_options_and_mismatched_material_are_refused(tiny_dataset):
+    with pytest.raises(ValueError, match="unknown option"):
+        optimize(_scene(), tiny_dataset, progress=False, iteratons=3)
+    with pytest.raises(ValueError, match="method"):
+        optimize(_scene(), tiny_dataset, progress=False, method="rk4")
+    with pytest.raises(ValueError, match="learning_rate"):
+        optimize(_scene(), tiny_dataset, progress=False, learning_rate=-1.0)
+    with pytest.raises(ValueError, match="field kind"):
+        optimize(_scene(), tiny_dataset, progress=False, kind="voxels")
+    other = mi_nest.load_scene("disk_compression", res=8, fringe_value=20.0)
+    with pytest.raises(ValueError, match="stress_optic_coefficient"):
+        optimize(other, tiny_dataset, progress=False)
+    with pytest.raises(mi_nest.SceneError, match="8x8"):
+        optimize(mi_nest.load_scene("disk_compression", res=16), tiny_dataset, progress=False)
+
+
+def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
+    assert main(["reconstruct", str(tiny_dataset), "-o", str(tmp_path / "result"), "--iterations", "2",
+                 "--batch-size", "64", "--resolution", "6", "--kind", "grid", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "relative deviatoric stress error" in out and "PSNR" in out
+    assert (tmp_path / "result" / "field.npz").is_file()
+    assert (tmp_path / "result" / "test_view.exr").is_file() and (tmp_path / "result" / "test_view.png").is_file()
+    assert main(["reconstruct", str(tmp_path / "missing"), "-o", str(tmp_path / "x")]) == 2
