@@ -160,3 +160,12 @@ def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
     assert (tmp_path / "result" / "field.npz").is_file()
     assert (tmp_path / "result" / "test_view.exr").is_file() and (tmp_path / "result" / "test_view.png").is_file()
     assert main(["reconstruct", str(tmp_path / "missing"), "-o", str(tmp_path / "x")]) == 2
+
+
+def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
+    result = optimize(_scene(), tiny_dataset, output=tmp_path / "run", progress=False,
+                      **{**FAST, "iterations": 10_000, "time_limit": 0.2, "kind": "grid"})
+    assert 1 <= len(result.history) < 10_000 and result.history[-1]["seconds"] >= 0.2
+    assert (tmp_path / "run" / "checkpoint.npz").is_file()
+    # The schedules follow the clock: the last learning rate is the final one.
+    assert result.history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)

@@ -52,6 +52,7 @@ class OptimizeConfig:
     pixel_samples: int | None = None  # rays averaged per pixel, as the camera integrates; None: the dataset's spp (<= 4)
     checkpoint_every: int = 100
     evaluate_views: int = 16         # held-out rotations rendered for the PSNR
+    time_limit: float | None = None  # seconds of optimisation after which the run stops early (None: none)
     seed: int = 0
     field: FieldConfig = field(default_factory=FieldConfig)
 
@@ -69,6 +70,8 @@ class OptimizeConfig:
                 raise ValueError(f"'{name}' must be positive, got {value}")
         if not 0 <= self.path_curriculum <= 1:
             raise ValueError(f"'path_curriculum' is a share of the iterations in [0, 1], got {self.path_curriculum}")
+        if self.time_limit is not None and not self.time_limit > 0:
+            raise ValueError(f"'time_limit' must be a positive number of seconds, got {self.time_limit}")
         if self.step_size is not None and not (math.isfinite(self.step_size) and self.step_size > 0):
             raise ValueError(f"'step_size' must be a positive length in mm, got {self.step_size}")
 
@@ -261,7 +264,7 @@ class _Run:
     def __init__(self, scene, dataset, config, low, high, scale, output, progress):
         self.scene, self.dataset, self.config = scene, dataset, config
         self.output = None if output is None else Path(output)
-        self.progress = progress
+        self.show_progress = progress
         self.kind = choose_kind(config.field, high - low)
         self.stages = self._stages()
         self.field = make_field(replace(config.field, kind=self.kind, resolution=self.stages[0][1]), low, high,
@@ -277,16 +280,22 @@ class _Run:
         self.last_good = None
 
     def _stages(self):
-        """``[(first iteration, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
+        """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
         resolution = self.config.field.resolution
         if self.kind != "grid" or not self.config.coarse_to_fine:
-            return [(0, resolution)]
-        resolutions = [r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution]
-        resolutions = sorted(set(resolutions)) + [resolution]
-        # The finest stage gets half the iterations: it has the most unknowns.
-        shares = [0.5 / (len(resolutions) - 1)] * (len(resolutions) - 1) + [0.5] if len(resolutions) > 1 else [1.0]
-        starts = np.concatenate([[0], np.cumsum(shares)[:-1]]) * self.config.iterations
-        return [(int(round(s)), r) for s, r in zip(starts, resolutions)]
+            return [(0.0, resolution)]
+        resolutions = sorted({r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution})
+        resolutions.append(resolution)
+        # The finest stage gets the second half: it has the most unknowns.
+        starts = [0.5 * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 else [0.0]
+        return list(zip(starts, resolutions))
+
+    def progress(self):
+        """How far the run is, in [0, 1]: by iterations, or by time when a time limit comes first."""
+        done = self.iteration / self.config.iterations
+        if self.config.time_limit is not None:
+            done = max(done, self.seconds / self.config.time_limit)
+        return min(done, 1.0)
 
     def _optimizer(self):
         return dr.opt.Adam(lr=self.config.learning_rate, params=self.field.parameters())
@@ -294,27 +303,28 @@ class _Run:
     def integrator(self):
         return make_integrator(self.config, self.field)
 
-    def learning_rate(self, iteration):
-        fraction = iteration / max(1, self.config.iterations - 1)
-        return self.config.learning_rate * (self.config.final_learning_rate / self.config.learning_rate) ** fraction
+    def learning_rate(self):
+        """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
+        ratio = self.config.final_learning_rate / self.config.learning_rate
+        return self.config.learning_rate * ratio ** self.progress()
 
     def loop(self):
         config = self.config
         integrator = self.integrator()
         bar = None
-        if self.progress:
+        if self.show_progress:
             from tqdm import tqdm
             bar = tqdm(total=config.iterations, initial=self.iteration, desc=f"reconstruct ({self.field.kind})",
                        unit="it", mininterval=0.5)
         try:
-            while self.iteration < config.iterations:
+            while self.iteration < config.iterations and not self.out_of_time():
                 self._refine_if_due()
                 start = time.perf_counter()
                 loss = self.step(integrator)
                 elapsed = time.perf_counter() - start
                 self.seconds += elapsed
                 self.history.append({"iteration": self.iteration, "loss": loss,
-                                     "learning_rate": self.learning_rate(self.iteration),
+                                     "learning_rate": self.learning_rate(),
                                      "seconds": round(self.seconds, 4)})
                 self.iteration += 1
                 if self.iteration % config.checkpoint_every == 0 or self.iteration == config.iterations:
@@ -330,13 +340,18 @@ class _Run:
             if bar is not None:
                 bar.close()
 
+    def out_of_time(self):
+        if self.config.time_limit is None or self.seconds < self.config.time_limit:
+            return False
+        self.checkpoint()
+        return True
+
     def _refine_if_due(self):
-        for start, resolution in self.stages[1:]:
-            if self.iteration == start and self.field.kind == "grid" and \
-                    self.field.config.resolution != resolution:
-                self.field = refined(self.field, resolution)
-                _give_field(self.scene, self.field)
-                self.optimizer = self._optimizer()
+        resolution = [r for start, r in self.stages if start <= self.progress()][-1]
+        if self.field.kind == "grid" and self.field.config.resolution != resolution:
+            self.field = refined(self.field, resolution)
+            _give_field(self.scene, self.field)
+            self.optimizer = self._optimizer()
 
     def step(self, integrator):
         config = self.config
@@ -345,7 +360,7 @@ class _Run:
         samples = self.pixel_samples
         rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
                                           jitter=stratified(len(rows), samples, self.rng))
-        self.optimizer.set_learning_rate(self.learning_rate(self.iteration))
+        self.optimizer.set_learning_rate(self.learning_rate())
         self.field.assign(self.optimizer)
         seed = self.config.seed * 1_000_003 + self.iteration
         state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
@@ -379,12 +394,12 @@ class _Run:
         the longer ones a field that is already nearly right, instead of the
         wrapped local minima a fit of all paths at once falls into.
         """
-        span = self.config.path_curriculum * self.config.iterations
-        if self.iteration >= span:
+        span = self.config.path_curriculum
+        if self.progress() >= span:
             return None
         extent = self.field.bbox_max - self.field.bbox_min
         shortest, longest = float(extent.min()), float(np.linalg.norm(extent))
-        return shortest * (longest / shortest) ** (self.iteration / span)
+        return shortest * (longest / shortest) ** (self.progress() / span)
 
     def _check_divergence(self, loss):
         norm = math.sqrt(sum(float(dr.sum(dr.square(_flat(dr.grad(self.optimizer[k]))))[0])
