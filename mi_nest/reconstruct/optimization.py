@@ -314,8 +314,13 @@ class _Run:
         bar = None
         if self.show_progress:
             from tqdm import tqdm
-            bar = tqdm(total=config.iterations, initial=self.iteration, desc=f"reconstruct ({self.field.kind})",
-                       unit="it", mininterval=0.5)
+            # Against a time limit the bar counts seconds: the iteration count would not say when it ends.
+            timed = config.time_limit is not None
+            bar = tqdm(total=config.time_limit if timed else config.iterations,
+                       initial=min(self.seconds, config.time_limit) if timed else self.iteration,
+                       desc=f"reconstruct ({self.field.kind})", unit="s" if timed else "it", mininterval=0.5,
+                       bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]" if timed
+                       else None)
         try:
             while self.iteration < config.iterations and not self.out_of_time():
                 self._refine_if_due()
@@ -330,9 +335,9 @@ class _Run:
                 if self.iteration % config.checkpoint_every == 0 or self.iteration == config.iterations:
                     self.checkpoint()
                 if bar is not None:
-                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{config.batch_size / elapsed:.3g}",
+                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{config.batch_size * self.pixel_samples / elapsed:.3g}",
                                     refresh=False)
-                    bar.update()
+                    bar.update(min(elapsed, config.time_limit - bar.n) if timed else 1)
         except KeyboardInterrupt:
             self.checkpoint()
             raise
