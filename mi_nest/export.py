@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .io.grid import StressGrid
+from .io.grid import StressGrid, grid_nodes
 from .io.vtk import write_grid_vtu
 
 
@@ -25,10 +25,8 @@ def specimen_grids(scene, resolution=64):
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
         spacing = (hi - lo).max() / (int(resolution) - 1)
         counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
-        axes = [np.linspace(lo[i], hi[i], counts[i]) for i in range(3)]
-        z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-        values = medium.sample(np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1))
-        grids.append(StressGrid(values.reshape(*z.shape, 6), lo, hi))
+        values = medium.sample(grid_nodes(lo, hi, counts))
+        grids.append(StressGrid(values.reshape(counts[2], counts[1], counts[0], 6), lo, hi))
     return grids
 
 

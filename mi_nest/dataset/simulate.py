@@ -84,12 +84,17 @@ def specimen_shapes(scene):
     return shapes
 
 
+def specimen_media(scene):
+    """The distinct stress media of the scene's specimens."""
+    return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
+
+
 def _index(scene, scene_file, defines, settings, rotations):
     shapes = specimen_shapes(scene)
     low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
     high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
     center = 0.5 * (low + high)
-    media = {id(s.interior_medium()): s.interior_medium() for s in shapes}.values()
+    media = specimen_media(scene)
     film = scene.sensors()[0].film()
     light = next(e for e in scene.emitters() if hasattr(e, "polarizer"))
     reference = reference_pose(scene)

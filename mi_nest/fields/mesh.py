@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.grid import StressGrid
+from ..io.grid import StressGrid, grid_nodes
 from .base import FieldParameterError
 
 # A positively oriented hexahedron (VTK / 3D-TSV order: bottom quad 0-3, top quad
@@ -124,10 +124,7 @@ class TetMeshStress:
         spacing = (hi - lo).max() / (int(resolution) - 1)
         counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
         hi = lo + (counts - 1) * spacing
-        axes = [np.linspace(lo[i], hi[i], counts[i]) for i in range(3)]
-        z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-        points = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
-        values = self.sample(points).reshape(counts[2], counts[1], counts[0], 6)
+        values = self.sample(grid_nodes(lo, hi, counts)).reshape(counts[2], counts[1], counts[0], 6)
         stress = fill_from_nearest(values, ~np.isnan(values[..., 0])).astype(np.float32)
         return StressGrid(stress, lo, hi)
 

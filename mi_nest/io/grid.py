@@ -68,3 +68,11 @@ def save_stress_grid(path, grid: StressGrid):
     """Write atomically (temp file + rename) so a crash never leaves half a grid."""
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, stress=grid.stress, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max)
+
+
+def grid_nodes(bbox_min, bbox_max, counts):
+    """``(nz * ny * nx, 3)`` positions of the nodes of a grid with ``counts = (nx, ny, nz)`` nodes spanning
+    the box, in the (z, y, x) order of a stress array."""
+    axes = [np.linspace(bbox_min[i], bbox_max[i], int(counts[i])) for i in range(3)]
+    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .grid import grid_nodes
+
 
 def stress_matrices(stress6):
     """(N, 6) in 3D-TSV order (xx yy zz yz zx xy) -> (N, 3, 3) symmetric tensors."""
@@ -46,9 +48,7 @@ def write_mesh_vtu(path, nodes, cells, stress6):
 def write_grid_vtu(path, grid):
     """A :class:`~mi_nest.io.grid.StressGrid` as hexahedral cells between its nodes."""
     nz, ny, nx = grid.stress.shape[:3]
-    axes = [np.linspace(grid.bbox_min[i], grid.bbox_max[i], n) for i, n in enumerate((nx, ny, nz))]
-    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-    nodes = np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
     index = np.arange(nx * ny * nz).reshape(nz, ny, nx)
     corner = index[:-1, :-1, :-1].ravel()
     dx, dy, dz = 1, nx, nx * ny

@@ -21,6 +21,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..fields.base import StressField
+from ..io.grid import grid_nodes
 
 KINDS = ("grid", "hashgrid", "mlp")
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
@@ -309,9 +310,7 @@ def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
     config = FieldConfig(**{**asdict(field.config), "kind": "grid", "resolution": int(resolution)})
     finer = DeviatoricGrid(config, field.bbox_min, field.bbox_max, field.stress_scale)
     nx, ny, nz = finer.shape
-    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(field.bbox_min, field.bbox_max, (nx, ny, nz))]
-    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-    nodes = mi.Point3f(np.stack([x.ravel(), y.ravel(), z.ravel()]).astype(np.float32))
+    nodes = mi.Point3f(grid_nodes(field.bbox_min, field.bbox_max, finer.shape).T.astype(np.float32))
     with dr.suspend_grad():
         values = np.stack([np.array(c) for c in field.deviatoric(nodes)], axis=-1)
     finer.assign({"grid": mi.TensorXf(values.reshape(nz, ny, nx, 5).astype(np.float32))})

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import occupancy
+from ..io.grid import grid_nodes
 from .fields import deviatoric_part
 
 # Points per axis of the evaluation lattice along the longest side of the specimen.
@@ -79,9 +80,7 @@ def representation_floor(field, truth, points):
     from .fields import DeviatoricGrid
     copy = DeviatoricGrid(field.config, field.bbox_min, field.bbox_max, field.stress_scale)
     nx, ny, nz = copy.shape
-    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(copy.bbox_min, copy.bbox_max, (nx, ny, nz))]
-    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-    nodes = deviatoric_part(sample(truth, np.stack([x.ravel(), y.ravel(), z.ravel()], axis=-1)))
+    nodes = deviatoric_part(sample(truth, grid_nodes(copy.bbox_min, copy.bbox_max, copy.shape)))
     stored = nodes[:, [0, 1, 3, 4, 5]] / copy.stress_scale
     copy.assign({"grid": mi.TensorXf(stored.reshape(nz, ny, nx, 5).astype(np.float32))})
     return stress_errors(copy, truth, points).deviatoric

@@ -22,7 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..dataset import Dataset
-from ..dataset.simulate import specimen_shapes
+from ..dataset.simulate import specimen_media, specimen_shapes
 from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
 from ..render import load_scene
@@ -177,19 +177,15 @@ def _plain_config(config):
     return json.loads(json.dumps(asdict(config)))
 
 
-def _media(scene):
-    return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
-
-
 def _give_field(scene, stress_field):
-    for medium in _media(scene):
+    for medium in specimen_media(scene):
         medium.field = stress_field
 
 
 @contextlib.contextmanager
 def with_field(scene, stress_field):
     """Temporarily give every specimen of ``scene`` the stress field ``stress_field``."""
-    previous = [(medium, medium.field) for medium in _media(scene)]
+    previous = [(medium, medium.field) for medium in specimen_media(scene)]
     _give_field(scene, stress_field)
     try:
         yield
@@ -218,7 +214,7 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     if not isinstance(dataset, Dataset):
         dataset = Dataset(dataset)
     shapes = specimen_shapes(scene)
-    media = _media(scene)
+    media = specimen_media(scene)
     _check_material(media, dataset)
     truth_field = media[0].field if truth == "scene" else truth
     if truth == "scene" and len({id(m.field) for m in media}) > 1:
