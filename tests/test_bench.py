@@ -2,7 +2,6 @@
 import csv
 import math
 
-import pytest
 
 from mi_nest import bench
 

@@ -1,7 +1,6 @@
 """Reconstruction: trainable fields, metrics, the optimiser (smoke, resume, divergence, options), CLI."""
 import json
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -1,7 +1,6 @@
 """Camera rays of dataset pixels: the scene's polariscope camera moved to each rotation's pose."""
 from __future__ import annotations
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
