@@ -418,3 +418,25 @@ def test_renders_through_the_photoelastic_integrator(field):
     channels = render([box((30, 30, 20), interior=interior)], res=8, view=14.0, step=0.25)
     assert all(np.all(np.isfinite(np.asarray(v))) for v in channels.values())
     assert np.max(channels["char.delta"]) > 0.1
+
+
+def test_a_contact_width_spreads_the_load_and_keeps_it():
+    point = DiskCompressionField(diameter=40.0, thickness=6.0, load=1000.0)
+    spread = DiskCompressionField(diameter=40.0, thickness=6.0, load=1000.0, contact_width=4.0)
+    x = np.linspace(-20.0, 20.0, 400_001)
+    # The load crosses the horizontal diameter whole: the integral of s_y over it is -P / t.
+    for disk in (point, spread):
+        assert np.trapezoid(disk.plane_stress(x, np.zeros_like(x))[1], x) == pytest.approx(-1000.0 / 6.0, rel=1e-6)
+    # Saint-Venant: far from the contacts the two agree; at the contact the pressure stays bounded.
+    u = RNG.uniform(0, 1, (2, 200))
+    r, angle = 8.0 * np.sqrt(u[0]), 2 * np.pi * u[1]
+    far = [np.stack(d.plane_stress(r * np.cos(angle), r * np.sin(angle))) for d in (point, spread)]
+    np.testing.assert_allclose(far[1], far[0], atol=0.02 * np.abs(far[0]).max())
+    depth = np.linspace(0.5, 3.0, 20)
+    under = spread.plane_stress(np.zeros_like(depth), 20.0 - depth)[1]
+    pressure = 1000.0 / (4.0 * 6.0)
+    assert np.all(np.abs(under) < 1.5 * pressure) and np.abs(under).max() > 0.5 * pressure
+    assert np.abs(point.plane_stress(np.zeros(1), np.array([19.5]))[1][0]) > 4 * pressure   # 1/r: 212 MPa
+    with pytest.raises(FieldParameterError, match="contact_width"):
+        DiskCompressionField(contact_width=50.0)
+    assert np.all(np.isfinite(np.array(spread.eval((np.zeros(3), np.full(3, 20.0), np.zeros(3))))))
