@@ -32,7 +32,8 @@ SCENES = {
 
 def run(scene_name, output, minutes, rotations, res, iterations):
     defines, options = SCENES[scene_name]
-    data = output / "data" / f"{scene_name}_{rotations}x{rotations}_{res}"
+    tag = "".join(f"_{k}{v:g}" for k, v in sorted(defines.items()))
+    data = output / "data" / f"{scene_name}{tag}_{rotations}x{rotations}_{res}"
     settings = SimulationSettings(azimuths=rotations, elevations=rotations, res=res)
     start = time.perf_counter()
     with warnings.catch_warnings():
