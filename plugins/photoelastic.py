@@ -497,10 +497,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         total = (mi.Float(0), mi.Float(0), mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
         while i < segment.steps:
-            offset = mi.Float(0.5)
-            if dr.hint(self.jitter, mode="scalar"):
-                offset = self._offset(segment, i)
-            total = _axpy(segment.h, self.generator_at(segment.point(i, offset), segment, setup), total)
+            total = _axpy(segment.h, self.generator_at(segment.point(i, self._offset(segment, i)), segment, setup),
+                          total)
             i += 1
         return total, total[1:3]
 

@@ -6,6 +6,7 @@ import math
 import mitsuba as mi
 
 from mi_nest.fields import MODELS, FieldParameterError
+from mi_nest.fields.base import sample as sample_field
 
 
 class StressMedium(mi.Medium):
@@ -97,10 +98,7 @@ class StressMedium(mi.Medium):
 
     def sample(self, points):
         """Stress (MPa) at NumPy points ``(N, 3)`` (mm) as an ``(N, 6)`` NumPy array."""
-        import numpy as np
-        points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-        stress = self.stress(mi.Point3f(*(mi.Float(points[:, i]) for i in range(3))))
-        return np.stack([np.broadcast_to(np.array(c, dtype=np.float64), (len(points),)) for c in stress], axis=-1)
+        return sample_field(self.field, points)
 
     def phase_tensor(self, p):
         """``pi C / lambda`` times the stress: phase per mm of the step generator."""

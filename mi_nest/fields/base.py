@@ -23,6 +23,15 @@ class StressField:
         pass
 
 
+def sample(field, points):
+    """``(N, 6)`` float64 stress (MPa) of ``field`` at NumPy points ``(N, 3)`` (mm), through Dr.Jit."""
+    import mitsuba as mi
+    import numpy as np
+    points = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    values = field.eval(mi.Point3f(points.T))
+    return np.stack([np.broadcast_to(np.array(v, dtype=np.float64), (len(points),)) for v in values], axis=-1)
+
+
 class FieldParameterError(ValueError):
     """A field or model parameter is missing, unknown or out of range."""
 

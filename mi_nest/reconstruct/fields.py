@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import drjit as dr
+import drjit.nn as nn
 import mitsuba as mi
 import numpy as np
 
@@ -197,7 +198,7 @@ def _neighbour_pairs(shape):
     return mi.UInt32(np.concatenate(first)), mi.UInt32(np.concatenate(second))
 
 
-class _SiLU:
+class SiLU(nn.Module):
     """``x sigmoid(x) = h + h tanh(h)`` with ``h = x / 2``: the NeST activation (``drjit.nn`` has none)."""
     DRJIT_STRUCT = {}
 
@@ -207,11 +208,6 @@ class _SiLU:
 
 
 def _network(config, inputs, hidden_layers, encoding=None):
-    import drjit.nn as nn
-
-    class SiLU(_SiLU, nn.Module):
-        pass
-
     layers = [] if encoding is None else [encoding]
     for _ in range(hidden_layers):
         layers += [nn.Linear(-1, config.width, bias=True), SiLU()]
@@ -222,7 +218,6 @@ def _network(config, inputs, hidden_layers, encoding=None):
 
 class _NeuralField(TrainableField):
     def _evaluate(self, features):
-        import drjit.nn as nn
         return tuple(mi.Float(x) for x in self.net(nn.CoopVec(*features)))
 
     def assign(self, values):
@@ -235,7 +230,6 @@ class MLPField(_NeuralField):
 
     def __init__(self, config, bbox_min, bbox_max, stress_scale):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
-        import drjit.nn as nn
         # Shifted octaves keep the encoding's extrema off a common lattice.
         self.net = _network(config, 3, config.layers, nn.SinEncode(config.octaves, shift=0.25))
 
@@ -255,7 +249,6 @@ class HashGridField(_NeuralField):
 
     def __init__(self, config, bbox_min, bbox_max, stress_scale):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
-        import drjit.nn as nn
         self.encoding = nn.HashGridEncoding(
             mi.Float, 3, n_levels=config.levels, n_features_per_level=config.features_per_level,
             hashmap_size=config.hashmap_size, base_resolution=config.base_resolution,

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import occupancy
+from ..fields.base import sample
 from ..io.grid import grid_nodes
 from .fields import deviatoric_part
 
@@ -33,13 +34,6 @@ def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
     axes = [np.arange(lo + 0.5 * spacing, hi, spacing) for lo, hi in zip(low, high)]
     lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     return lattice[occupancy.inside(scene, shapes, lattice)]
-
-
-def sample(field, points):
-    """``(N, 6)`` stress (MPa) of a field at NumPy points."""
-    points = np.asarray(points, dtype=np.float32)
-    values = field.eval(mi.Point3f(points.T))
-    return np.stack([np.broadcast_to(np.array(v, dtype=np.float64), (len(points),)) for v in values], axis=-1)
 
 
 def _tensor_norm(s6):
