@@ -113,8 +113,9 @@ def _parser():
                                      ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
                                      ("smoothness", float, "0")):
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
-    reconstruct.add_argument("--method", choices=("product", "magnus4", "linear"),
-                             help="forward model (default: product, NeST-general; linear is NeST-approx)")
+    reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
+                             help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
+                                  "is the baseline: per-view unwrapping, then linear tomography)")
     reconstruct.add_argument("--no-truth", action="store_true", help="no ground-truth errors (real captures)")
     reconstruct.add_argument("--restart", action="store_true", help="ignore a checkpoint in the output directory")
     reconstruct.add_argument("--no-progress", action="store_true", help="no progress bar")

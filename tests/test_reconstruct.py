@@ -80,12 +80,15 @@ def test_stress_errors_are_relative_and_ignore_the_mean_stress():
 
 def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     scene = _scene()
-    result = optimize(scene, tiny_dataset, output=tmp_path / "run", progress=False, kind="grid", **FAST)
+    result = optimize(scene, tiny_dataset, output=tmp_path / "run", progress=False, kind="grid",
+                      track_error_every=1, **FAST)
     dataset = mi_nest.Dataset(tiny_dataset)
     start = make_field(result.field.config, result.field.bbox_min, result.field.bbox_max, result.field.stress_scale)
     integrator = mi.load_dict({"type": "photoelastic", "step_size": 1.0})
     assert dataset_loss(scene, dataset, result.field, integrator) < dataset_loss(scene, dataset, start, integrator)
     assert len(result.history) == 3 and np.isfinite(result.metrics["deviatoric_error"])
+    # The error followed during the run ends where the final evaluation finds it.
+    assert result.history[-1]["deviatoric_error"] == pytest.approx(result.metrics["deviatoric_error"], rel=1e-6)
     assert 0 < result.metrics["test_psnr"] < 100
     saved = json.loads((tmp_path / "run" / "reconstruction.json").read_text())
     assert saved["metrics"]["deviatoric_error"] == result.metrics["deviatoric_error"]
@@ -142,6 +145,8 @@ def test_bad_options_and_mismatched_material_are_refused(tiny_dataset):
         optimize(_scene(), tiny_dataset, progress=False, method="rk4")
     with pytest.raises(ValueError, match="learning_rate"):
         optimize(_scene(), tiny_dataset, progress=False, learning_rate=-1.0)
+    with pytest.raises(ValueError, match="track_error_every"):
+        optimize(_scene(), tiny_dataset, progress=False, track_error_every=-1)
     with pytest.raises(ValueError, match="field kind"):
         optimize(_scene(), tiny_dataset, progress=False, kind="voxels")
     other = mi_nest.load_scene("disk_compression", res=8, fringe_value=20.0)

@@ -51,16 +51,34 @@ def principal_difference(s6):
 
 def stress_errors(field, truth, points) -> StressErrors:
     """Relative errors of ``field`` against ``truth`` at ``points`` (inside the specimen)."""
-    if len(points) == 0:
-        raise ValueError("no evaluation point lies inside the specimen")
-    estimate, reference = deviatoric_part(sample(field, points)), deviatoric_part(sample(truth, points))
-    scale = np.sqrt((_tensor_norm(reference) ** 2).sum())
-    if scale == 0:
-        raise ValueError("the true stress field is zero inside the specimen: relative errors are undefined")
-    deviatoric = np.sqrt((_tensor_norm(estimate - reference) ** 2).sum()) / scale
-    true_difference = principal_difference(reference)
+    probe = ErrorProbe(truth, points)
+    estimate = deviatoric_part(sample(field, points))
+    true_difference = principal_difference(probe.reference)
     difference = np.linalg.norm(principal_difference(estimate) - true_difference) / np.linalg.norm(true_difference)
-    return StressErrors(float(deviatoric), float(difference), len(points))
+    return StressErrors(probe.error_of(estimate), float(difference), len(points))
+
+
+class ErrorProbe:
+    """The deviatoric error of a field against ``truth`` at fixed ``points``, truth sampled once.
+
+    Cheap enough to follow the error during an optimisation (``track_error_every``).
+    """
+
+    def __init__(self, truth, points):
+        if len(points) == 0:
+            raise ValueError("no evaluation point lies inside the specimen")
+        self.points = points
+        self.reference = deviatoric_part(sample(truth, points))
+        self.scale = np.sqrt((_tensor_norm(self.reference) ** 2).sum())
+        if self.scale == 0:
+            raise ValueError("the true stress field is zero inside the specimen: relative errors are undefined")
+
+    def error_of(self, estimate):
+        """Relative error of deviatoric tensors ``estimate`` (N, 6) at the probe's points."""
+        return float(np.sqrt((_tensor_norm(estimate - self.reference) ** 2).sum()) / self.scale)
+
+    def __call__(self, field):
+        return self.error_of(deviatoric_part(sample(field, self.points)))
 
 
 def representation_floor(field, truth, points):

@@ -30,8 +30,11 @@ from . import metrics
 from .fields import (FieldConfig, TrainableField, choose_kind, field_from_state, grid_shape, make_field,
                      refined)
 from .rays import ViewRays, device_array
+from .two_step import RetardanceTargets
 
 FORWARD_MODELS = ("product", "magnus4", "linear")
+# The Two-step baseline fits per-view unwrapped retardance through the linear model (two_step.py).
+METHODS = FORWARD_MODELS + ("two-step",)
 CHECKPOINT = "checkpoint.npz"
 # A gradient this many times the median of the recent ones counts as exploding.
 EXPLODING_FACTOR = 1e4
@@ -44,7 +47,7 @@ class OptimizeConfig:
     views_per_batch: int = 16        # rotations each batch draws its rays from
     learning_rate: float = 3e-2      # in units of the stress scale per step
     final_learning_rate: float = 3e-3
-    method: str = "product"          # forward model: product (NeST-general), magnus4, linear (NeST-approx)
+    method: str = "product"          # product (NeST-general), magnus4, linear (NeST-approx), two-step (baseline)
     step_size: float | None = None   # mm; None: half the grid spacing, or the bounding box / 64
     coarse_to_fine: bool = True      # grids: start at a quarter of the resolution, double twice
     path_curriculum: float = 0.5     # share of the iterations over which the longest admitted path grows
@@ -53,14 +56,17 @@ class OptimizeConfig:
     checkpoint_every: int = 100
     evaluate_views: int = 16         # held-out rotations rendered for the PSNR
     time_limit: float | None = None  # seconds of optimisation after which the run stops early (None: none)
+    track_error_every: int = 0       # with a ground truth: record the stress error every this many iterations
     seed: int = 0
     field: FieldConfig = field(default_factory=FieldConfig)
 
     def __post_init__(self):
-        if self.method not in FORWARD_MODELS:
-            raise ValueError(f"method must be one of {FORWARD_MODELS}, got '{self.method}'")
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got '{self.method}'")
         if self.pixel_samples is not None and int(self.pixel_samples) < 1:
             raise ValueError(f"'pixel_samples' must be a positive integer, got {self.pixel_samples}")
+        if int(self.track_error_every) < 0:
+            raise ValueError(f"'track_error_every' must be >= 0 (0: never), got {self.track_error_every}")
         for name in ("iterations", "batch_size", "views_per_batch", "checkpoint_every"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"'{name}' must be a positive integer, got {getattr(self, name)}")
@@ -159,7 +165,8 @@ def make_integrator(config, stress_field):
             step = 0.5 * extent.max() / (max(grid_shape(config.field.resolution, extent)) - 1)
         else:
             step = float(extent.max()) / 64.0
-    return mi.load_dict({"type": "photoelastic", "method": config.method, "step_size": float(step), "jitter": True})
+    method = "linear" if config.method == "two-step" else config.method
+    return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True})
 
 
 def load_field(path) -> TrainableField:
@@ -224,6 +231,8 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
     scale = stress_scale(media, low, high)
     run = _Run(scene, dataset, config, low, high, scale, output, progress)
+    if truth_field is not None and config.track_error_every:
+        run.error_probe = metrics.ErrorProbe(truth_field, metrics.evaluation_points(scene, shapes))
     if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
         run.restore(Path(output) / CHECKPOINT)
     with with_field(scene, run.field):
@@ -274,6 +283,8 @@ class _Run:
         self.gradient_norms = []
         self.optimizer = self._optimizer()
         self.last_good = None
+        self.retardance = RetardanceTargets(dataset, config.mask) if config.method == "two-step" else None
+        self.error_probe = None
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -327,6 +338,9 @@ class _Run:
                 self.history.append({"iteration": self.iteration, "loss": loss,
                                      "learning_rate": self.learning_rate(),
                                      "seconds": round(self.seconds, 4)})
+                if self.error_probe is not None and self.iteration % config.track_error_every == 0:
+                    # Outside the timed step: following the error does not slow the run's clock.
+                    self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
                 self.iteration += 1
                 if self.iteration % config.checkpoint_every == 0 or self.iteration == config.iterations:
                     self.checkpoint()
@@ -359,6 +373,8 @@ class _Run:
         positions, rows, columns, targets = self.dataset.ray_batch(
             config.batch_size, self.rng, views_per_batch=config.views_per_batch, mask=config.mask)
         samples = self.pixel_samples
+        if self.retardance is not None:
+            targets = self.retardance.at(positions, rows, columns)
         rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
                                           jitter=stratified(len(rows), samples, self.rng))
         self.optimizer.set_learning_rate(self.learning_rate())
@@ -373,7 +389,10 @@ class _Run:
         with dr.resume_grad():
             leaf = tuple(mi.Float(x) for x in state)
             dr.enable_grad(leaf)
-            loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted)
+            if self.retardance is not None:
+                loss = generator_loss(leaf, targets, samples)
+            else:
+                loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted)
             total = loss
             penalty = self.field.regularization()
             if penalty is not None:
@@ -393,10 +412,11 @@ class _Run:
         specimen. Fitting short paths first (from the box's thinnest extent up to
         its diagonal over the first ``path_curriculum`` of the iterations) gives
         the longer ones a field that is already nearly right, instead of the
-        wrapped local minima a fit of all paths at once falls into.
+        wrapped local minima a fit of all paths at once falls into. The
+        Two-step fit has unwrapped targets and a convex loss: no curriculum.
         """
         span = self.config.path_curriculum
-        if self.progress() >= span:
+        if self.progress() >= span or self.retardance is not None:
             return None
         extent = self.field.bbox_max - self.field.bbox_min
         shortest, longest = float(extent.min()), float(np.linalg.norm(extent))
@@ -493,6 +513,20 @@ def l1_loss(q, targets, pixel_samples=1, weights=None):
         total = total + dr.sum(error if weights is None else error * weights)
     count = len(targets) if weights is None else dr.maximum(dr.sum(weights), 1.0)
     return total / (count * targets.shape[1])
+
+
+def generator_loss(state, targets, pixel_samples=1):
+    """Mean squared error of the linear model's summed generator ``(b, c)`` against ``targets`` (N, 2).
+
+    The Two-step baseline's tomography: least squares on unwrapped data.
+    """
+    targets = np.asarray(targets, dtype=np.float32)
+    total = 0.0
+    for channel, predicted in enumerate(state[1:3]):
+        if pixel_samples > 1:
+            predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
+        total = total + dr.sum(dr.square(predicted - device_array(mi.Float, targets[:, channel])))
+    return total / len(targets)
 
 
 def stratified(pixels, samples, rng):

@@ -1,0 +1,93 @@
+"""Per-pixel Jones recovery: the unit quaternion behind the 16 polariscope intensities (NumPy).
+
+Every intensity is a quadratic form in ``q`` (polariscope.py), and on unit
+quaternions the quadratic forms are spanned by the constant and the nine
+entries of the rotation ``R(q)`` that ``q`` induces on the Poincare sphere:
+each measurement is affine in ``R``. The rig has two input states (circular
+and linear), so the 16 measurements fix ``R`` on the plane those two Stokes
+vectors span; the rotation closest to that partial map (Procrustes) is ``R``,
+and ``R`` gives ``q`` up to its sign, which no intensity can see.
+This is the first step of the Two-step baseline (then per-view unwrapping and
+linear tomography, ``mi_nest.reconstruct.two_step``).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .polariscope import MEASUREMENTS
+
+
+def rotation_matrix(q):
+    """``(..., 3, 3)`` rotation of the unit quaternion ``q = (a, b, c, d)`` (last axis of size 4)."""
+    a, b, c, d = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (c * c + d * d), 2 * (b * c - d * a), 2 * (b * d + c * a)], axis=-1),
+        np.stack([2 * (b * c + d * a), 1 - 2 * (b * b + d * d), 2 * (c * d - b * a)], axis=-1),
+        np.stack([2 * (b * d - c * a), 2 * (c * d + b * a), 1 - 2 * (b * b + c * c)], axis=-1),
+    ], axis=-2)
+
+
+def quaternion_from_rotation(R):
+    """Inverse of :func:`rotation_matrix` with ``a >= 0`` (Shepperd's method: the largest pivot)."""
+    R = np.asarray(R, dtype=np.float64)
+    trace = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
+    pivots = np.stack([trace, R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]], axis=-1)
+    pivot = np.argmax(pivots, axis=-1)
+    q = np.empty(R.shape[:-2] + (4,))
+    rows = [
+        (1 + trace, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]),
+        (R[..., 2, 1] - R[..., 1, 2], 1 + 2 * R[..., 0, 0] - trace, R[..., 0, 1] + R[..., 1, 0],
+         R[..., 0, 2] + R[..., 2, 0]),
+        (R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], 1 + 2 * R[..., 1, 1] - trace,
+         R[..., 1, 2] + R[..., 2, 1]),
+        (R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1],
+         1 + 2 * R[..., 2, 2] - trace),
+    ]
+    for k, row in enumerate(rows):
+        chosen = pivot == k
+        q[chosen] = np.stack([x[chosen] for x in row], axis=-1)
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+@lru_cache(maxsize=8)
+def _affine_model(names):
+    """``(offset (16,), A (16, 9))`` with ``I_k(q) = offset_k + A_k . vec(R(q))`` for unit ``q``.
+
+    Fitted exactly on random unit quaternions: the constant and R's entries
+    span the quadratic forms there, so the residual is round-off.
+    """
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(64, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    design = np.concatenate([np.ones((len(q), 1)), rotation_matrix(q).reshape(-1, 9)], axis=-1)
+    values = np.stack([MEASUREMENTS[n].intensity(tuple(q.T)) for n in names], axis=-1)
+    solution, *_ = np.linalg.lstsq(design, values, rcond=None)
+    residual = np.abs(design @ solution - values).max()
+    if residual > 1e-9:
+        raise RuntimeError(f"polariscope intensities are not affine in R(q) (residual {residual:.2e})")
+    return solution[0], solution[1:].T
+
+
+def quaternion_from_intensities(values, names=tuple(MEASUREMENTS)):
+    """The Jones quaternion (``a >= 0``) behind 16 intensities ``(..., 16)`` ordered as ``names``.
+
+    Least squares: exact for noiseless data, the closest rotation otherwise.
+    """
+    names = tuple(names)
+    unknown = sorted(set(names) - set(MEASUREMENTS))
+    if unknown or len(set(names)) != len(MEASUREMENTS) or len(names) != len(MEASUREMENTS):
+        raise ValueError(f"need the 16 measurements {list(MEASUREMENTS)}, got {list(names)}")
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape[-1] != len(names):
+        raise ValueError(f"the last axis holds {values.shape[-1]} intensities, expected {len(names)}")
+    offset, A = _affine_model(names)
+    partial = ((values - offset) @ np.linalg.pinv(A, rcond=1e-9).T).reshape(values.shape[:-1] + (3, 3))
+    U, _, Vt = np.linalg.svd(partial)
+    # The rotation closest to the partial map: flip the weakest axis if that keeps det = +1.
+    flip = np.ones(U.shape[:-1])
+    flip[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    flip[flip == 0] = 1.0
+    return quaternion_from_rotation((U * flip[..., None, :]) @ Vt)
