@@ -40,29 +40,40 @@ def linear_polarizer(alpha_deg):
     return np.outer(p, p).astype(np.complex128)
 
 
+def waveplate(beta_deg, retardance_deg=90.0):
+    """Linear retarder with fast axis at ``beta``: ``R(beta) diag(1, exp(i delta)) R(-beta)``."""
+    return rotation(beta_deg) @ np.diag([1, np.exp(1j * np.deg2rad(retardance_deg))]) @ rotation(-beta_deg)
+
+
 def quarter_wave_plate(beta_deg):
     """QWP with fast axis at ``beta``: ``R(beta) diag(1, i) R(-beta)``."""
-    return rotation(beta_deg) @ np.diag([1, 1j]) @ rotation(-beta_deg)
+    return waveplate(beta_deg, 90.0)
 
 
 @dataclass(frozen=True)
 class Polariscope:
-    """One polariscope configuration; ``None`` means the element is absent."""
+    """One polariscope configuration; ``None`` means the element is absent.
+
+    The retardances (degrees) of the two waveplates are 90 for ideal QWPs;
+    calibration fits the real ones.
+    """
     polarizer: float = 90.0
     input_qwp: Optional[float] = None
     output_qwp: Optional[float] = None
     analyzer: Optional[float] = None
+    input_retardance: float = 90.0
+    output_retardance: float = 90.0
 
     def input_state(self):
         t = np.deg2rad(self.polarizer)
         e = np.array([np.cos(t), np.sin(t)], dtype=np.complex128)
-        return e if self.input_qwp is None else quarter_wave_plate(self.input_qwp) @ e
+        return e if self.input_qwp is None else waveplate(self.input_qwp, self.input_retardance) @ e
 
     def output_rows(self):
         """Rows ``w^T`` whose squared amplitudes add up to the detected intensity."""
         rows = np.eye(2, dtype=np.complex128)
         if self.output_qwp is not None:
-            rows = rows @ quarter_wave_plate(self.output_qwp)
+            rows = rows @ waveplate(self.output_qwp, self.output_retardance)
         if self.analyzer is not None:
             t = np.deg2rad(self.analyzer)
             rows = np.array([[np.cos(t), np.sin(t)]]) @ rows

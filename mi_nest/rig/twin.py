@@ -1,0 +1,116 @@
+"""The digital twin's camera: a polarisation camera looking at a simulated specimen through imperfect optics.
+
+It renders what the rig would see at the stages' and the waveplate's *true*
+positions (read from the simulated devices, never from what was commanded),
+through optics with the angle offsets and waveplate retardances that
+calibration has to find, and through the dataset camera model (read and shot
+noise, quantisation, the IMX250MZR 2x2 micro-polariser mosaic). One capture is
+one exposure: the four analyser images 0/45/90/135 at once.
+
+Each pixel integrates ``supersample``^2 point samples of the Jones product:
+the intensities, not the Jones matrices, are averaged, as a sensor does. The
+Jones images of a rotation are kept, so the waveplate settings of one rotation
+render once.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..dataset.camera import CameraModel
+from ..physics.polariscope import Polariscope
+from ..physics.su2 import identity
+
+ANALYZERS = (0, 45, 90, 135)
+
+
+@dataclass(frozen=True)
+class Optics:
+    """The polariscope as built: angle offsets (degrees, from the nominal) and waveplate retardances.
+
+    ``polarizer`` is the reference of every angle (the light panel's LP1 at
+    90 degrees defines the frame), so it has no offset of its own.
+    """
+    analyzer_offset: float = 0.0     # the camera's micro-polarisers against the image axes
+    qwp1_offset: float = 0.0         # QWP1 (manual mount) against its scale
+    qwp2_offset: float = 0.0         # QWP2's fast axis against the ELL14's zero
+    qwp1_retardance: float = 90.0
+    qwp2_retardance: float = 90.0
+
+    def polariscope(self, qwp1, qwp2, analyzer, polarizer=90.0):
+        """The physical polariscope when the mounts read ``qwp1``, ``qwp2`` and the analyser is ``analyzer``."""
+        return Polariscope(polarizer, qwp1 + self.qwp1_offset, qwp2 + self.qwp2_offset,
+                           analyzer + self.analyzer_offset, self.qwp1_retardance, self.qwp2_retardance)
+
+    def to_dict(self):
+        return asdict(self)
+
+
+class SimulatedCamera:
+    """Captures of ``scene`` (None: free space) posed by ``pose_of(azimuth, elevation) -> to_world``.
+
+    ``rig_state()`` returns the true ``(azimuth, elevation, qwp2)`` in degrees;
+    ``qwp1`` is the manual plate's setting, changed by the operator (or a test).
+    """
+
+    def __init__(self, jones_of, rig_state, optics=Optics(), camera=CameraModel(), resolution=(64, 64)):
+        self.jones_of = jones_of
+        self.rig_state = rig_state
+        self.optics = optics
+        self.camera = camera
+        self.resolution = tuple(resolution)
+        self.qwp1 = 45.0
+        self.exposures = 0
+        self._cached = None
+
+    def _jones(self, azimuth, elevation):
+        key = (round(azimuth, 6), round(elevation, 6))
+        if self._cached is None or self._cached[0] != key:
+            self._cached = (key, self.jones_of(azimuth, elevation))
+        return self._cached[1]
+
+    def capture(self):
+        """``{analyser: (H, W) float32}`` normalised intensities of one exposure at the rig's true state."""
+        azimuth, elevation, qwp2 = self.rig_state()
+        q, factor = self._jones(azimuth, elevation)
+        width, height = self.resolution
+        images = {}
+        for analyzer in ANALYZERS:
+            intensity = self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q)
+            intensity = np.broadcast_to(intensity, (height * factor, width * factor))
+            images[f"analyzer.{analyzer}"] = intensity.reshape(height, factor, width, factor).mean(axis=(1, 3))
+        captured = self.camera.capture(images, self.exposures)
+        self.exposures += 1
+        return {int(name.split(".")[1]): image for name, image in captured.items()}
+
+
+def free_space(azimuth, elevation):
+    """No specimen: the identity everywhere (the calibration captures)."""
+    return identity(np.float64(0.0)), 1
+
+
+def scene_renderer(scene_file, defines, resolution, supersample=2, spp=1):
+    """``jones_of(azimuth, elevation)`` rendering ``scene_file`` at ``supersample`` times ``resolution``.
+
+    Returns the per-sample Jones quaternions ``(a, b, c, d)`` of shape
+    ``(H * s, W * s)`` and the factor ``s``.
+    """
+    from ..dataset.schedule import Rotation, camera_to_world
+    from ..dataset.simulate import pose, reference_pose, specimen_shapes
+    from ..render import load_scene, render
+
+    width, _ = resolution
+    scene = load_scene(scene_file, **{**dict(defines), "res": width * supersample, "spp": spp})
+    reference = reference_pose(scene)
+    shapes = specimen_shapes(scene)
+    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
+    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    center = 0.5 * (low + high)
+
+    def jones_of(azimuth, elevation):
+        pose(scene, camera_to_world(reference, Rotation(0, azimuth, elevation, "train"), center))
+        channels = render(scene).channels
+        return tuple(channels[f"jones.{k}"].astype(np.float64) for k in "abcd"), supersample
+
+    return jones_of
