@@ -24,11 +24,12 @@ def linear_settings():
     """The (b1, b2) settings whose free-space output is linearly polarised."""
     identity = su2.identity(np.zeros(1))
     settings = sorted({tuple(name.split(".")[1:3]) for name in MEASUREMENTS})
-    return [s for s in settings if _dolp([Polariscope(90.0, float(s[0]), float(s[1]), float(a)).intensity(identity)
+    return [s for s in settings if dolp([Polariscope(90.0, float(s[0]), float(s[1]), float(a)).intensity(identity)
                                          for a in ANALYSERS])[0] > 0.999]
 
 
-def _dolp(by_analyser):
+def dolp(by_analyser):
+    """Degree of linear polarisation from the four analyser images ``(I0, I45, I90, I135)``."""
     i0, i45, i90, i135 = by_analyser
     total = 0.5 * (i0 + i45 + i90 + i135)
     return np.hypot(i0 - i90, i45 - i135) / np.maximum(total, 1e-12)
@@ -36,7 +37,7 @@ def _dolp(by_analyser):
 
 def min_dolp(channels: dict):
     """The smallest DoLP over the linear-output settings, per pixel."""
-    values = [_dolp([channels[f"pol.{b1}.{b2}.{a}"] for a in ANALYSERS]) for b1, b2 in linear_settings()]
+    values = [dolp([channels[f"pol.{b1}.{b2}.{a}"] for a in ANALYSERS]) for b1, b2 in linear_settings()]
     return np.min(values, axis=0)
 
 

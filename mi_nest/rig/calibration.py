@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..dataset.masks import ANALYSERS, dolp, linear_settings
 from ..physics.su2 import identity
-from .twin import ANALYZERS, Optics
+from .twin import Optics
 
 # The sweep of QWP2 (degrees) at each QWP1 setting: every 15 degrees over a half turn.
 QWP2_SWEEP = tuple(range(0, 180, 15))
@@ -51,37 +52,24 @@ class Calibration:
         lines = [f"{name} = {getattr(self.optics, name):.3f} deg (+/- {self.standard_errors[name]:.3f})"
                  for name in PARAMETERS]
         lines.append(f"light level {self.light_level:.4f}; residual rms {self.residual_rms:.2e} over "
-                     f"{self.exposures} exposures x {len(ANALYZERS)} analysers; background mask keeps "
+                     f"{self.exposures} exposures x {len(ANALYSERS)} analysers; background mask keeps "
                      f"{100 * self.background_fraction:.1f}% of the pixels")
         return "\n".join(lines)
-
-
-def degree_of_linear_polarization(images):
-    """DoLP of one exposure from its four analyser images."""
-    s0 = images[0] + images[90]
-    s1 = images[0] - images[90]
-    s2 = images[45] - images[135]
-    return np.sqrt(s1 * s1 + s2 * s2) / np.maximum(s0, 1e-6)
-
-
-def _linear_in_free_space(qwp1, qwp2):
-    q = identity(np.float64(0.0))
-    ideal = {a: Optics().polariscope(qwp1, qwp2, a).intensity(q) for a in ANALYZERS}
-    return degree_of_linear_polarization(ideal) > 0.99
 
 
 def background_mask(exposures, threshold=0.9):
     """Pixels whose DoLP stays above ``threshold`` in every exposure whose free-space output is linear.
 
-    An ideal polariscope gives DoLP 1 there; a birefringent or scattering
-    object in view turns the light elliptical or depolarises it.
+    An ideal polariscope gives DoLP 1 there (``dataset.masks.linear_settings``);
+    a birefringent or scattering object in view turns the light elliptical or
+    depolarises it.
     """
-    linear = [e for e in exposures if _linear_in_free_space(e.qwp1, e.qwp2)]
-    if not linear:
-        raise ValueError("no exposure whose ideal free-space output is linearly polarised: "
+    linear = {(float(b1), float(b2)) for b1, b2 in linear_settings()}
+    chosen = [e for e in exposures if (float(e.qwp1), float(e.qwp2)) in linear]
+    if not chosen:
+        raise ValueError(f"no exposure at a setting with linearly polarised free-space output {sorted(linear)}: "
                          "cannot tell the background")
-    dolp = np.min([degree_of_linear_polarization(e.images) for e in linear], axis=0)
-    return dolp > threshold
+    return np.min([dolp([e.images[a] for a in ANALYSERS]) for e in chosen], axis=0) > threshold
 
 
 def _model(parameters, settings):
@@ -102,7 +90,7 @@ def fit(exposures, threshold=0.9) -> Calibration:
         raise ValueError("no background pixel stays polarised: is the light panel on and the view free?")
     settings, measured = [], []
     for exposure in exposures:
-        for analyzer in ANALYZERS:
+        for analyzer in ANALYSERS:
             settings.append((exposure.qwp1, exposure.qwp2, analyzer))
             measured.append(float(np.mean(exposure.images[analyzer][mask])))
     measured = np.array(measured)

@@ -19,10 +19,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..dataset.camera import CameraModel
+from ..dataset.masks import ANALYSERS
 from ..physics.polariscope import Polariscope
 from ..physics.su2 import identity
-
-ANALYZERS = (0, 45, 90, 135)
 
 
 @dataclass(frozen=True)
@@ -76,7 +75,7 @@ class SimulatedCamera:
         q, factor = self._jones(azimuth, elevation)
         width, height = self.resolution
         images = {}
-        for analyzer in ANALYZERS:
+        for analyzer in ANALYSERS:
             intensity = self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q)
             intensity = np.broadcast_to(intensity, (height * factor, width * factor))
             images[f"analyzer.{analyzer}"] = intensity.reshape(height, factor, width, factor).mean(axis=(1, 3))
