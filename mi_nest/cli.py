@@ -7,6 +7,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from .rig.errors import RigError
+
 DEFAULT_SCENE = "disk_compression"
 
 
@@ -119,6 +121,20 @@ def _parser():
     reconstruct.add_argument("--no-truth", action="store_true", help="no ground-truth errors (real captures)")
     reconstruct.add_argument("--restart", action="store_true", help="ignore a checkpoint in the output directory")
     reconstruct.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    acquire = commands.add_parser("acquire", help="capture a dataset on the polariscope rig (or its digital twin); "
+                                                  "rerun the same command to resume an interrupted capture")
+    acquire.add_argument("rig", help="rig file (TOML), or a shipped one by name (rig_twin)")
+    acquire.add_argument("-o", "--output", required=True, help="dataset directory (journal, frames, rotations)")
+    acquire.add_argument("--dry-run", action="store_true", help="print the schedule and its estimated duration")
+    acquire.add_argument("--yes", action="store_true", help="do not wait for the operator at the manual QWP1")
+    acquire.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    calibrate = commands.add_parser("calibrate", help="fit the polariscope's angle offsets and retardances from a "
+                                                      "free-space sweep on the rig (no specimen in view)")
+    calibrate.add_argument("rig", help="rig file (TOML), or a shipped one by name (rig_twin)")
+    calibrate.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    calibrate.add_argument("--yes", action="store_true", help="do not wait for the operator at the manual QWP1")
 
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
@@ -311,6 +327,33 @@ def write_test_view(scene, result, output, dataset):
     return ", test_view.exr, test_view.png (reconstructed | measured)"
 
 
+def _acquire(args):
+    from .rig import acquire as acquisition
+    from .rig.config import load
+    config = load(args.rig)
+    if args.dry_run:
+        acquisition.dry_run(config)
+        return
+    operator = acquisition.unattended_operator if args.yes else acquisition.terminal_operator
+    report = acquisition.acquire(config, args.output, operator=operator, progress=not args.quiet)
+    print(report.describe())
+    print(f"wrote {Path(args.output).resolve()}")
+
+
+def _calibrate(args):
+    import json
+    from .io.atomic import atomic_path
+    from .rig import acquire as acquisition
+    from .rig.config import load
+    config = load(args.rig)
+    operator = acquisition.unattended_operator if args.yes else acquisition.terminal_operator
+    calibration = acquisition.calibrate(config, operator=operator)
+    print(calibration.describe())
+    with atomic_path(args.output, ".json") as tmp:
+        Path(tmp).write_text(json.dumps(calibration.to_dict(), indent=1))
+    print(f"wrote {Path(args.output).resolve()}")
+
+
 def _format_warning(message, category, filename, lineno, line=None):
     return f"mi-nest: warning: {message}\n"
 
@@ -336,11 +379,15 @@ def main(argv=None):
             _show(args)
         elif args.command == "reconstruct":
             _reconstruct(args)
+        elif args.command == "acquire":
+            _acquire(args)
+        elif args.command == "calibrate":
+            _calibrate(args)
         elif args.command == "scenes":
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
                 print(path.stem)
-    except (ValueError, OSError) as error:
+    except (ValueError, OSError, RigError) as error:
         print(f"mi-nest: error: {error}", file=sys.stderr)
         return 2
     finally:

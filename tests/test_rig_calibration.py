@@ -66,6 +66,13 @@ def test_a_birefringent_object_in_view_is_masked_out():
     assert abs(calibration.optics.qwp2_offset - TRUE_OPTICS.qwp2_offset) < 1e-3
 
 
+def test_measured_angles_a_few_counts_off_still_find_the_background():
+    exposures = _sweep(free_space, TRUE_OPTICS)
+    for exposure in exposures:
+        exposure.qwp2 += 0.004            # an ELL14 reading, not the nominal angle
+    assert background_mask(exposures).all()
+
+
 def test_calibration_refuses_an_incomplete_sweep():
     exposures = [e for e in _sweep(free_space, Optics()) if e.qwp1 == 45.0]
     with pytest.raises(ValueError, match="both QWP1 settings"):

@@ -24,6 +24,8 @@ from .twin import Optics
 # The sweep of QWP2 (degrees) at each QWP1 setting: every 15 degrees over a half turn.
 QWP2_SWEEP = tuple(range(0, 180, 15))
 QWP1_SETTINGS = (45.0, 90.0)
+# Degrees within which a measured mount angle counts as a nominal setting.
+SETTING_TOLERANCE = 0.5
 PARAMETERS = ("analyzer_offset", "qwp1_offset", "qwp2_offset", "qwp1_retardance", "qwp2_retardance")
 
 
@@ -64,8 +66,11 @@ def background_mask(exposures, threshold=0.9):
     a birefringent or scattering object in view turns the light elliptical or
     depolarises it.
     """
-    linear = {(float(b1), float(b2)) for b1, b2 in linear_settings()}
-    chosen = [e for e in exposures if (float(e.qwp1), float(e.qwp2)) in linear]
+    linear = [(float(b1), float(b2)) for b1, b2 in linear_settings()]
+    # Measured mount angles are a few counts off the nominal ones.
+    chosen = [e for e in exposures if any(abs(e.qwp1 - b1) < SETTING_TOLERANCE and
+                                          abs((e.qwp2 - b2 + 180.0) % 360.0 - 180.0) < SETTING_TOLERANCE
+                                          for b1, b2 in linear)]
     if not chosen:
         raise ValueError(f"no exposure at a setting with linearly polarised free-space output {sorted(linear)}: "
                          "cannot tell the background")

@@ -1,0 +1,227 @@
+"""The rig description (``RIG.toml``) that ``mi-nest acquire`` and ``mi-nest calibrate`` run from.
+
+One file names everything that differs between the digital twin and the real
+rig: the devices' URLs (``aptsim://``/``ell14sim://`` or ``/dev/ttyUSB0``), the
+camera back-end, the schedule of specimen rotations, the timing, and the
+calibration to apply. A typo must not cost a three-hour capture, so unknown and
+missing keys are errors that name the section and the key.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from urllib.parse import urlsplit
+
+try:
+    import tomllib
+except ModuleNotFoundError:     # Python < 3.11
+    import tomli as tomllib
+
+from ..dataset.camera import CameraModel
+from ..dataset.schedule import rotation_grid
+from .twin import Optics
+
+SIMULATED_SCHEMES = {"azimuth": "aptsim", "elevation": "aptsim", "qwp2": "ell14sim"}
+QWP1_MODES = ("manual",)
+
+
+class RigConfigError(ValueError):
+    """The rig file is missing, unreadable, or has a missing, unknown or invalid key."""
+
+
+@dataclass(frozen=True)
+class Devices:
+    azimuth: str                 # HDR50 stage turning the specimen about the image's vertical
+    elevation: str               # HDR50 stage tipping it towards the camera
+    qwp2: str                    # ELL14 turning the camera-side quarter-wave plate
+    azimuth_channel: int = 1
+    elevation_channel: int = 1
+    qwp2_address: str = "0"
+
+    @property
+    def simulated(self):
+        return all(urlsplit(getattr(self, name)).scheme == scheme for name, scheme in SIMULATED_SCHEMES.items())
+
+
+@dataclass(frozen=True)
+class TwinCamera:
+    """The digital twin's camera: a shipped scene rendered through imperfect ``optics`` and ``model``."""
+    scene: str
+    defines: dict = field(default_factory=dict)
+    resolution: tuple = (32, 32)
+    supersample: int = 2
+    spp: int = 1
+    exposure: float = 0.05               # seconds, spent on the rig's clock
+    model: CameraModel = CameraModel()
+    optics: Optics = Optics()            # the truth calibration has to find
+
+    kind = "twin"
+
+
+@dataclass(frozen=True)
+class Schedule:
+    azimuths: int = 25
+    elevations: int = 16
+    azimuth_range: float = 180.0
+    elevation_range: float = 90.0
+    test_fraction: float = 0.2
+    split_seed: int = 0
+
+    def rotations(self):
+        return rotation_grid(self.azimuths, self.elevations, self.azimuth_range, self.elevation_range,
+                             self.test_fraction, self.split_seed)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Seconds and speeds: ``settle`` is waited before every exposure; the rest feeds the dry run's estimate."""
+    settle: float = 0.5
+    stage_speed: float = 10.0            # degrees per second (HDR50 default velocity profile)
+    qwp2_seconds_per_turn: float = 1.5   # ELL14 full turn
+    readback: float = 0.2                # position reads and protocol round trips per frame
+    qwp1_change: float = 60.0            # the operator turning the manual QWP1
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    devices: Devices
+    camera: TwinCamera
+    schedule: Schedule = Schedule()
+    timing: Timing = Timing()
+    qwp1_mode: str = "manual"
+    retries: int = 3                     # further attempts of a failed frame before the run stops
+    retry_wait: float = 2.0              # seconds before reconnecting and trying again
+    dolp_threshold: float = 0.95
+    calibration: Path | None = None
+    source: Path | None = None           # the TOML file, for messages
+
+    def calibrated_optics(self):
+        """The optics fitted by ``mi-nest calibrate`` (None when no calibration file is given)."""
+        if self.calibration is None:
+            return None
+        return load_calibration(self.calibration)[0]
+
+    def to_dict(self):
+        """Plain values for the journal and ``dataset.json`` (the rig a dataset was captured with)."""
+        camera = asdict(self.camera)
+        camera["kind"] = self.camera.kind
+        camera["resolution"] = list(self.camera.resolution)
+        return {"devices": asdict(self.devices), "camera": camera, "schedule": asdict(self.schedule),
+                "timing": asdict(self.timing), "qwp1": {"mode": self.qwp1_mode}, "retries": self.retries,
+                "retry_wait": self.retry_wait, "dolp_threshold": self.dolp_threshold,
+                "calibration": None if self.calibration is None else str(self.calibration)}
+
+
+def load_calibration(path):
+    """``(Optics, the calibration's dict)`` from a file written by ``mi-nest calibrate``."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+        return Optics(**data["optics"]), data
+    except FileNotFoundError as error:
+        raise RigConfigError(f"calibration file not found: {path}") from error
+    except (json.JSONDecodeError, KeyError, TypeError) as error:
+        raise RigConfigError(f"{path}: not a calibration written by mi-nest calibrate ({error})") from error
+
+
+def _take(table, where, required=(), optional=()):
+    """The keys of ``table`` after checking that every required key is there and no unknown one is."""
+    if not isinstance(table, dict):
+        raise RigConfigError(f"[{where}] must be a table, got {table!r}")
+    missing = [k for k in required if k not in table]
+    if missing:
+        raise RigConfigError(f"[{where}] is missing {', '.join(repr(k) for k in missing)}")
+    unknown = sorted(set(table) - set(required) - set(optional))
+    if unknown:
+        raise RigConfigError(f"[{where}] has unknown key(s) {unknown}; known: {sorted(set(required) | set(optional))}")
+    return table
+
+
+def _dataclass_options(cls, table, where):
+    names = [n for n in cls.__dataclass_fields__]
+    _take(table, where, optional=names)
+    try:
+        return cls(**table)
+    except (TypeError, ValueError) as error:
+        raise RigConfigError(f"[{where}]: {error}") from error
+
+
+def _camera(table):
+    kind = table.get("kind")
+    if kind != "twin":
+        raise RigConfigError(f"[camera] kind = {kind!r}: only the digital twin ('twin') is built in; real camera "
+                             "back-ends (GenICam via Aravis or harvesters, for the LUCID Phoenix) are optional "
+                             "extras that are not installed")
+    _take(table, "camera", required=("kind", "scene"),
+          optional=("defines", "resolution", "supersample", "spp", "exposure", "model", "optics"))
+    resolution = tuple(table.get("resolution", (32, 32)))
+    if len(resolution) != 2 or not all(isinstance(n, int) and n > 0 for n in resolution):
+        raise RigConfigError(f"[camera] resolution must be [width, height] in pixels, got {table.get('resolution')}")
+    for name in ("supersample", "spp"):
+        if not (isinstance(table.get(name, 1), int) and table.get(name, 1) >= 1):
+            raise RigConfigError(f"[camera] {name} must be a positive integer, got {table[name]!r}")
+    if not isinstance(table.get("defines", {}), dict):
+        raise RigConfigError(f"[camera.defines] must be a table of the scene's $NAME values, got {table['defines']!r}")
+    return TwinCamera(scene=str(table["scene"]), defines=dict(table.get("defines", {})),
+                      resolution=resolution, supersample=table.get("supersample", 2), spp=table.get("spp", 1),
+                      exposure=float(table.get("exposure", 0.05)),
+                      model=_dataclass_options(CameraModel, table.get("model", {}), "camera.model"),
+                      optics=_dataclass_options(Optics, table.get("optics", {}), "camera.optics"))
+
+
+def parse(data: dict, source=None) -> RigConfig:
+    """A :class:`RigConfig` from the TOML document ``data`` (``source``: its path, for relative paths)."""
+    _take(data, "top level", required=("devices", "camera"),
+          optional=("schedule", "timing", "qwp1", "acquisition", "calibration"))
+    devices = _take(data["devices"], "devices", required=("azimuth", "elevation", "qwp2"),
+                    optional=("azimuth_channel", "elevation_channel", "qwp2_address"))
+    devices = Devices(**devices)
+    camera = _camera(data["camera"])
+    if not devices.simulated:
+        raise RigConfigError(f"[camera] kind = 'twin' renders what simulated devices report; the devices must be "
+                             f"{', '.join(f'{n} = {s}://NAME' for n, s in SIMULATED_SCHEMES.items())}, got "
+                             f"{asdict(devices)}")
+    schedule = _dataclass_options(Schedule, data.get("schedule", {}), "schedule")
+    try:
+        schedule.rotations()
+    except ValueError as error:
+        raise RigConfigError(f"[schedule]: {error}") from error
+    timing = _dataclass_options(Timing, data.get("timing", {}), "timing")
+    if min(asdict(timing).values()) < 0 or timing.stage_speed <= 0 or timing.qwp2_seconds_per_turn <= 0:
+        raise RigConfigError(f"[timing]: times must be >= 0 and speeds > 0, got {asdict(timing)}")
+    qwp1 = _take(data.get("qwp1", {}), "qwp1", optional=("mode",))
+    mode = qwp1.get("mode", "manual")
+    if mode not in QWP1_MODES:
+        raise RigConfigError(f"[qwp1] mode = {mode!r}: QWP1 sits in a manual mount; only {QWP1_MODES} is supported")
+    acquisition = _take(data.get("acquisition", {}), "acquisition",
+                        optional=("retries", "retry_wait", "dolp_threshold"))
+    retries = acquisition.get("retries", 3)
+    if not (isinstance(retries, int) and retries >= 0):
+        raise RigConfigError(f"[acquisition] retries must be an integer >= 0, got {retries!r}")
+    calibration = data.get("calibration")
+    if calibration is not None:
+        calibration = Path(calibration)
+        if source is not None and not calibration.is_absolute():
+            calibration = Path(source).parent / calibration
+    return RigConfig(devices, camera, schedule, timing, mode, retries, float(acquisition.get("retry_wait", 2.0)),
+                     float(acquisition.get("dolp_threshold", 0.95)), calibration,
+                     None if source is None else Path(source))
+
+
+def load(path) -> RigConfig:
+    """Read and check ``RIG.toml``; a shipped name (``rig_twin``) finds the file among the shipped scenes."""
+    path = Path(path)
+    if not path.is_file() and path.suffix == "" and not path.parent.name:
+        from ..render import scene_path
+        path = scene_path("disk_compression").parent / f"{path.name}.toml"
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError as error:
+        raise RigConfigError(f"rig file not found: {path}") from error
+    except tomllib.TOMLDecodeError as error:
+        raise RigConfigError(f"{path}: not valid TOML ({error})") from error
+    try:
+        return parse(data, path)
+    except RigConfigError as error:
+        raise RigConfigError(f"{path}: {error}") from error
