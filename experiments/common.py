@@ -7,6 +7,7 @@ kept under ``OUTPUT/data`` and reused (simulation resumes), results go to
 """
 from __future__ import annotations
 
+import argparse
 import csv
 import time
 import warnings
@@ -17,6 +18,34 @@ from mi_nest.dataset import SimulationSettings, simulate
 
 # Every experiment's optimiser settings, unless it varies them.
 OPTIONS = dict(batch_size=2048, learning_rate=0.05, final_learning_rate=0.002, iterations=100_000)
+
+
+def arguments(doc, name, scene="disk_compression", defines=("load=300", "contact_width=4"), rotations=32, res=64,
+              minutes=3.0, resolution=32):
+    """The options every experiment shares; ``name`` names its output folder, CSV and PNG."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--scene", default=scene)
+    parser.add_argument("-D", dest="defines", action="append", default=list(defines), metavar="NAME=VALUE")
+    parser.add_argument("--rotations", type=int, default=rotations)
+    parser.add_argument("--res", type=int, default=res)
+    parser.add_argument("--minutes", type=float, default=minutes, help="of optimisation per run")
+    parser.add_argument("--resolution", type=int, default=resolution, help="grid nodes along the longest axis")
+    parser.add_argument("--output", type=Path, default=Path("experiments/out") / name)
+    parser.set_defaults(name=name)
+    return parser
+
+
+def parse(parser):
+    """``(args, defines)`` with the ``-D`` defines as numbers."""
+    args = parser.parse_args()
+    return args, {k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}
+
+
+def finish(args, rows, results, title):
+    """The experiment's table and its chart of stress error against optimisation time."""
+    write_table(rows, args.output / f"{args.name}.csv")
+    plot_histories(results, args.output / f"{args.name}.png", f"{args.scene}: {title}", key="deviatoric_error",
+                   ylabel="relative deviatoric stress error")
 
 
 def dataset(scene, output, rotations, res, defines=None, **settings):

@@ -10,9 +10,6 @@ one curve per pair on error against seconds. Writes ``error_vs_time.csv`` and
 """
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import common
 
 KINDS = {"grid": {"kind": "grid"}, "hashgrid": {"kind": "hashgrid"}, "mlp": {"kind": "mlp", "learning_rate": 0.005,
@@ -21,19 +18,10 @@ METHODS = ("product", "linear")
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="disk_compression")
-    parser.add_argument("-D", dest="defines", action="append", default=["load=300", "contact_width=4"],
-                        metavar="NAME=VALUE")
+    parser = common.arguments(__doc__, "error_vs_time")
     parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=list(KINDS))
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    parser.add_argument("--rotations", type=int, default=32)
-    parser.add_argument("--res", type=int, default=64)
-    parser.add_argument("--minutes", type=float, default=3.0, help="per pair")
-    parser.add_argument("--resolution", type=int, default=32, help="grid nodes along the longest axis")
-    parser.add_argument("--output", type=Path, default=Path("experiments/out/error_vs_time"))
-    args = parser.parse_args()
-    defines = {k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}
+    args, defines = common.parse(parser)
     data, _ = common.dataset(args.scene, args.output, args.rotations, args.res, defines)
     rows, results = [], []
     for kind in args.kinds:
@@ -45,11 +33,7 @@ def main():
             rows.append({"kind": kind, "method": method, "parameters": result.field.parameter_count(),
                          "iterations_per_s": round(len(result.history) / max(result.seconds, 1e-9), 1), **row})
             results.append((label, result))
-    common.write_table(rows, args.output / "error_vs_time.csv")
-    common.plot_histories(results, args.output / "error_vs_time.png",
-                          f"{args.scene}: error against time per representation and forward model",
-                          key="deviatoric_error", ylabel="relative deviatoric stress error")
-
+    common.finish(args, rows, results, "error against time per representation and forward model")
 
 if __name__ == "__main__":
     main()

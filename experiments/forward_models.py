@@ -12,25 +12,15 @@ error against optimisation time) to ``--output``:
 """
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import common
 
 MODELS = {"NeST-general": "product", "NeST-approx": "linear", "Two-step": "two-step"}
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="stacked_disks")
-    parser.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE")
-    parser.add_argument("--rotations", type=int, default=16)
-    parser.add_argument("--res", type=int, default=48)
-    parser.add_argument("--minutes", type=float, default=4.0, help="per model")
-    parser.add_argument("--resolution", type=int, default=24, help="grid nodes along the longest axis")
-    parser.add_argument("--output", type=Path, default=Path("experiments/out/forward_models"))
-    args = parser.parse_args()
-    defines = {k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}
+    parser = common.arguments(__doc__, "forward_models", scene="stacked_disks", defines=(), rotations=16, res=48,
+                              minutes=4.0, resolution=24)
+    args, defines = common.parse(parser)
     data, _ = common.dataset(args.scene, args.output, args.rotations, args.res, defines)
     rows, results = [], []
     for label, method in MODELS.items():
@@ -39,10 +29,7 @@ def main():
                                          track_error_every=250)
         rows.append({"model": label, "method": method, **row})
         results.append((label, result))
-    common.write_table(rows, args.output / "forward_models.csv")
-    common.plot_histories(results, args.output / "forward_models.png", f"{args.scene}: forward models",
-                          key="deviatoric_error", ylabel="relative deviatoric stress error")
-
+    common.finish(args, rows, results, "forward models")
 
 if __name__ == "__main__":
     main()

@@ -11,9 +11,6 @@ normalised intensity), as in the paper. Writes ``stress_optic.csv`` and
 """
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import mi_nest
 from mi_nest.dataset import CameraModel
 from mi_nest.dataset.simulate import specimen_media
@@ -24,19 +21,10 @@ REFERENCE_COEFFICIENT = 0.25
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="disk_compression")
-    parser.add_argument("-D", dest="defines", action="append", default=["load=300", "contact_width=4"],
-                        metavar="NAME=VALUE")
+    parser = common.arguments(__doc__, "stress_optic")
     parser.add_argument("--coefficients", type=float, nargs="+", default=[0.1, 0.25, 0.5])
     parser.add_argument("--read-noise", type=float, default=0.01)
-    parser.add_argument("--rotations", type=int, default=32)
-    parser.add_argument("--res", type=int, default=64)
-    parser.add_argument("--minutes", type=float, default=3.0, help="per coefficient")
-    parser.add_argument("--resolution", type=int, default=32, help="grid nodes along the longest axis")
-    parser.add_argument("--output", type=Path, default=Path("experiments/out/stress_optic"))
-    args = parser.parse_args()
-    defines = {k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}
+    args, defines = common.parse(parser)
     shipped = mi_nest.load_scene(args.scene, res=8, **defines)
     fringe_value = specimen_media(shipped)[0].fringe_value
     camera = CameraModel(read_noise=args.read_noise, seed=1)
@@ -50,11 +38,7 @@ def main():
         rows.append({"coefficient": coefficient, "fringe_value": round(scaled["fringe_value"], 3),
                      "read_noise": args.read_noise, "simulate_s": round(simulated, 1), **row})
         results.append((label, result))
-    common.write_table(rows, args.output / "stress_optic.csv")
-    common.plot_histories(results, args.output / "stress_optic.png",
-                          f"{args.scene}: stress-optic coefficient, read noise {args.read_noise:g}",
-                          key="deviatoric_error", ylabel="relative deviatoric stress error")
-
+    common.finish(args, rows, results, f"stress-optic coefficient, read noise {args.read_noise:g}")
 
 if __name__ == "__main__":
     main()
