@@ -325,6 +325,16 @@ def test_stall_is_stopped_and_reported_then_the_stage_works_again():
         assert stage.move_to(60) == 60.0
 
 
+def test_a_motion_that_runs_past_its_time_limit_is_stopped():
+    with HDR50("aptsim://az?speed=0.5", motion_timeout=10.0) as stage:          # 60 degrees would take 120 s
+        device = sim.device("aptsim://az?speed=0.5")
+        start = stage.clock.now()
+        with pytest.raises(MotionError, match="still moving"):
+            stage.move_to(60)
+        assert 10.0 <= stage.clock.now() - start < 12.0
+        assert sent(device, apt.MoveStop) and device.motion is None
+
+
 def test_dropped_byte_in_a_reply_is_resynchronised():
     with HDR50("aptsim://az") as stage:
         device = sim.device("aptsim://az")

@@ -45,10 +45,12 @@ class HDR50:
     """
 
     def __init__(self, url, channel=1, timeout=1.0, retries=2, tolerance=10, poll_interval=0.1,
-                 stall_timeout=2.0, busy_timeout=30.0, port_factory=serial.serial_for_url):
+                 stall_timeout=2.0, busy_timeout=30.0, motion_timeout=120.0, port_factory=serial.serial_for_url):
         self.url, self.name = url, f"HDR50 at {url}"
         self.timeout, self.retries, self.tolerance = timeout, retries, tolerance
         self.poll_interval, self.stall_timeout, self.busy_timeout = poll_interval, stall_timeout, busy_timeout
+        # A full turn takes 36 s at the HDR50's 10 deg/s: a motion still running after this has run away.
+        self.motion_timeout = motion_timeout
         self._framer = apt.Framer()
         self._completions = deque()
         try:
@@ -260,10 +262,16 @@ class HDR50:
         """Return when the motion has ended: its completion message came, or the status bits say it is over
         (the message can be lost). A counter that stops changing for stall_timeout means a stall."""
         last_position, last_change = None, self.clock.now()
+        deadline = last_change + self.motion_timeout
         while self._receive(lambda m: isinstance(m, done_type) and self._from_channel(m), self.poll_interval) is None:
             if not self.status() & apt.MOTION:
                 return
             position, now = self._counter(), self.clock.now()
+            if now > deadline:
+                self._request(apt.MoveStop(self._channel, apt.STOP_IMMEDIATE, dest=self._dest), apt.MoveStopped)
+                bits = self.status()
+                raise MotionError(f"stage still moving at {position} microsteps after {self.motion_timeout} s; "
+                                  f"stopped it ({apt.describe_status(bits)})", device=self.name, code=bits)
             if position != last_position:
                 last_position, last_change = position, now
             elif now - last_change >= self.stall_timeout:
