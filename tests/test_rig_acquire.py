@@ -13,6 +13,7 @@ from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.dataset import format as fmt
 from mi_nest.io.exr import read_channels
+from mi_nest.physics.su2 import identity
 from mi_nest.rig import sim
 from mi_nest.rig.acquire import (JOURNAL, AcquisitionError, acquire, dry_run, estimate_seconds, read_journal,
                                  schedule)
@@ -249,6 +250,31 @@ def test_calibrate_finds_the_twins_offsets_and_acquisition_applies_them(tmp_path
         # the plate really sits there (to the ELL14's resolution)
         assert abs(record["qwp2_measured"] - record["qwp2_commanded"]) < 360 / 143360
     assert mi_nest.Dataset(output).index["calibration"]["qwp2_offset"] == pytest.approx(found["qwp2_offset"])
+
+
+def test_a_calibrated_capture_is_read_through_the_polariscope_as_built(tmp_path):
+    """The analyser cannot be turned and the waveplates are not exactly quarter-wave: the dataset's
+    polariscopes (what reconstruction renders its channels with) are the calibrated ones, and they explain
+    the background, where the Jones matrix is the identity, which the nominal ones do not."""
+    optics = {"analyzer_offset": 3.0, "qwp1_retardance": 84.0, "qwp2_retardance": 96.0}
+    path = rig_file(tmp_path, resolution=16, optics=optics)
+    assert main(["calibrate", str(path), "-o", str(tmp_path / "calibration.json"), "--yes"]) == 0
+    path.write_text('calibration = "calibration.json"\n' + path.read_text())
+    acquire(load(path), tmp_path / "capture", progress=False)
+    dataset = mi_nest.Dataset(tmp_path / "capture")
+    scope = dataset.polariscopes()[dataset.channels.index("pol.45.0.45")]
+    assert scope.analyzer == pytest.approx(48.0, abs=0.05) and scope.output_retardance == pytest.approx(96.0, abs=0.1)
+
+    def background_error():
+        """Per channel, the median error over background pixels (some at the rim see the specimen)."""
+        free = [s.intensity(identity(0.0)) for s in dataset.polariscopes()]
+        background = [dataset.measurements(p)[dataset.view(p, ["mask.dolp"])["mask.dolp"] < 0.5]
+                      for p in range(len(dataset))]
+        return np.median(np.abs(np.concatenate(background) - free), axis=0).max()
+
+    as_built = background_error()
+    dataset.index["calibration"] = None
+    assert as_built < 5e-3 < 0.02 < background_error()
 
 
 @pytest.mark.slow

@@ -7,11 +7,13 @@ rotations; evaluation reads whole views.
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..io.exr import ExrFileError, read_channels
+from ..physics import MEASUREMENTS
 from . import format as fmt
 
 
@@ -43,6 +45,22 @@ class Dataset:
         if name not in ("train", "test"):
             raise ValueError(f"split must be 'train' or 'test', got '{name}'")
         return [i for i, r in enumerate(self.rotations) if r["split"] == name]
+
+    def polariscopes(self):
+        """The polariscope each channel was measured with, in ``channels`` order.
+
+        Nominal unless the capture was calibrated: acquisition then turns both
+        waveplates to their nominal angles minus the fitted offsets, so what
+        remains is the analyser's offset (the camera's micro-polarisers cannot
+        be turned) and the two retardances.
+        """
+        calibration = self.index.get("calibration")
+        scopes = [MEASUREMENTS[name] for name in self.channels]
+        if not calibration:
+            return tuple(scopes)
+        return tuple(replace(scope, analyzer=scope.analyzer + calibration["analyzer_offset"],
+                             input_retardance=calibration["qwp1_retardance"],
+                             output_retardance=calibration["qwp2_retardance"]) for scope in scopes)
 
     def to_world(self, position):
         return np.array(self.rotations[position]["to_world"])

@@ -53,8 +53,8 @@ def quaternion_from_rotation(R):
 
 
 @lru_cache(maxsize=8)
-def _affine_model(names):
-    """``(offset (16,), A (16, 9))`` with ``I_k(q) = offset_k + A_k . vec(R(q))`` for unit ``q``.
+def _affine_model(polariscopes):
+    """``(offset (N,), A (N, 9))`` with ``I_k(q) = offset_k + A_k . vec(R(q))`` for unit ``q``.
 
     Fitted exactly on random unit quaternions: the constant and R's entries
     span the quadratic forms there, so the residual is round-off.
@@ -63,7 +63,7 @@ def _affine_model(names):
     q = rng.normal(size=(64, 4))
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     design = np.concatenate([np.ones((len(q), 1)), rotation_matrix(q).reshape(-1, 9)], axis=-1)
-    values = np.stack([MEASUREMENTS[n].intensity(tuple(q.T)) for n in names], axis=-1)
+    values = np.stack([scope.intensity(tuple(q.T)) for scope in polariscopes], axis=-1)
     solution, *_ = np.linalg.lstsq(design, values, rcond=None)
     residual = np.abs(design @ solution - values).max()
     if residual > 1e-9:
@@ -71,19 +71,22 @@ def _affine_model(names):
     return solution[0], solution[1:].T
 
 
-def quaternion_from_intensities(values, names=tuple(MEASUREMENTS)):
-    """The Jones quaternion (``a >= 0``) behind 16 intensities ``(..., 16)`` ordered as ``names``.
+def quaternion_from_intensities(values, polariscopes=tuple(MEASUREMENTS.values())):
+    """The Jones quaternion (``a >= 0``) behind intensities ``(..., N)`` measured with ``polariscopes``.
 
     Least squares: exact for noiseless data, the closest rotation otherwise.
+    The settings must fix the rotation on a plane of input states (rank 6 of
+    the affine model), as the rig's 16 do, calibrated or nominal.
     """
-    names = tuple(names)
-    unknown = sorted(set(names) - set(MEASUREMENTS))
-    if unknown or len(set(names)) != len(MEASUREMENTS) or len(names) != len(MEASUREMENTS):
-        raise ValueError(f"need the 16 measurements {list(MEASUREMENTS)}, got {list(names)}")
+    polariscopes = tuple(polariscopes)
     values = np.asarray(values, dtype=np.float64)
-    if values.shape[-1] != len(names):
-        raise ValueError(f"the last axis holds {values.shape[-1]} intensities, expected {len(names)}")
-    offset, A = _affine_model(names)
+    if values.shape[-1] != len(polariscopes):
+        raise ValueError(f"the last axis holds {values.shape[-1]} intensities for {len(polariscopes)} polariscopes")
+    offset, A = _affine_model(polariscopes)
+    rank = np.linalg.matrix_rank(A, tol=1e-9)
+    if rank < 6:
+        raise ValueError(f"these {len(polariscopes)} polariscope settings do not determine the Jones matrix (rank "
+                         f"{rank} of the 6 needed: two input states, each analysed in three independent ways)")
     partial = ((values - offset) @ np.linalg.pinv(A, rcond=1e-9).T).reshape(values.shape[:-1] + (3, 3))
     U, _, Vt = np.linalg.svd(partial)
     # The rotation closest to the partial map: flip the weakest axis if that keeps det = +1.

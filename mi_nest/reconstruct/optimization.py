@@ -285,6 +285,7 @@ class _Run:
         self.last_good = None
         self.retardance = RetardanceTargets(dataset, config.mask) if config.method == "two-step" else None
         self.error_probe = None
+        self.polariscopes = dataset.polariscopes()
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -392,7 +393,7 @@ class _Run:
             if self.retardance is not None:
                 loss = generator_loss(leaf, targets, samples)
             else:
-                loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted)
+                loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted, self.polariscopes)
             total = loss
             penalty = self.field.regularization()
             if penalty is not None:
@@ -492,13 +493,13 @@ def _flat(values):
     return values.array if isinstance(values, mi.TensorXf) else values
 
 
-def intensities(q):
-    """The 16 normalised intensities of the multi-axis polariscope, in dataset channel order."""
-    return [scope.intensity(q) for scope in MEASUREMENTS.values()]
+def intensities(q, polariscopes=tuple(MEASUREMENTS.values())):
+    """The normalised intensities of ``polariscopes`` (default the nominal 16, in dataset channel order)."""
+    return [scope.intensity(q) for scope in polariscopes]
 
 
-def l1_loss(q, targets, pixel_samples=1, weights=None):
-    """Mean absolute error of the 16 intensities against ``targets`` (N, 16).
+def l1_loss(q, targets, pixel_samples=1, weights=None, polariscopes=tuple(MEASUREMENTS.values())):
+    """Mean absolute error of the intensities of ``polariscopes`` against ``targets`` (N, 16).
 
     ``q`` holds ``pixel_samples`` consecutive rays per target pixel; their
     intensities are averaged first, as the camera integrates over its pixels.
@@ -506,7 +507,7 @@ def l1_loss(q, targets, pixel_samples=1, weights=None):
     """
     targets = np.asarray(targets, dtype=np.float32)
     total = 0.0
-    for channel, predicted in enumerate(intensities(q)):
+    for channel, predicted in enumerate(intensities(q, polariscopes)):
         if pixel_samples > 1:
             predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
         error = dr.abs(predicted - device_array(mi.Float, targets[:, channel]))
@@ -540,10 +541,12 @@ def stratified(pixels, samples, rng):
 
 
 def predict_view(scene, view_rays, integrator, position):
-    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with the scene's current field."""
+    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with the scene's current field,
+    through the polariscopes the dataset was measured with."""
     rays, right = view_rays.view(position)
     state, blocked, _ = integrator.trace_rays(scene, rays, right)
-    return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked))], axis=-1)
+    scopes = view_rays.dataset.polariscopes()
+    return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked), scopes)], axis=-1)
 
 
 def _view_mask(dataset, position, mask):

@@ -80,7 +80,7 @@ class RetardanceTargets:
     def view(self, position):
         """``(H, W, 2)`` unwrapped generator of rotation ``position``."""
         if position not in self._views:
-            q = quaternion_from_intensities(self.dataset.measurements(position), self.dataset.channels)
+            q = quaternion_from_intensities(self.dataset.measurements(position), self.dataset.polariscopes())
             if self.mask is None:
                 inside = np.ones(q.shape[:2], dtype=bool)
             else:
