@@ -113,7 +113,8 @@ def _parser():
     for name, kind, default_help in (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
                                      ("resolution", int, "32 grid nodes along the longest axis"),
                                      ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
-                                     ("smoothness", float, "0")):
+                                     ("smoothness", float, "0"),
+                                     ("warm-start", float, "0: no Two-step warm start")):
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
@@ -291,7 +292,8 @@ def _reconstruct(args):
         raise ValueError(f"{args.dataset} does not name its scene; give --scene")
     defines = {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
     options = {"kind": args.kind}
-    for name in ("iterations", "batch_size", "resolution", "learning_rate", "step_size", "smoothness", "method"):
+    for name in ("iterations", "batch_size", "resolution", "learning_rate", "step_size", "smoothness", "warm_start",
+                 "method"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     from . import load_scene

@@ -128,3 +128,33 @@ def test_two_step_reconstruction_fits_the_unwrapped_data(tmp_path):
     assert np.mean(losses[-10:]) < 0.4 * np.mean(losses[:5])
     assert result.metrics["deviatoric_error"] < 1.0
     assert result.integrator().method == "linear"
+
+
+def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(tmp_path, monkeypatch):
+    from mi_nest.dataset import SimulationSettings, simulate
+    from mi_nest.reconstruct import optimization
+    data = tmp_path / "disk"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        simulate("disk_compression", data, SimulationSettings(azimuths=2, elevations=2, res=16, spp=1,
+                                                              test_fraction=0.25),
+                 progress=False, defines={"load": 100, "contact_width": 4})
+    scene = mi_nest.load_scene("disk_compression", res=16, load=100, contact_width=4)
+    models = []
+    original = optimization.make_integrator
+
+    def recording(config, field, method=None):
+        integrator = original(config, field, method)
+        models.append(integrator.method)
+        return integrator
+
+    monkeypatch.setattr(optimization, "make_integrator", recording)     # a spy: the real integrators run
+    result = optimize(scene, data, progress=False, warm_start=0.5, kind="grid", resolution=8, iterations=40,
+                      batch_size=256, views_per_batch=3, learning_rate=0.1, pixel_samples=1, evaluate_views=1,
+                      coarse_to_fine=False)
+    assert models[:2] == ["linear", "product"]        # the Two-step fit, then the joint one
+    assert np.isfinite(result.metrics["deviatoric_error"]) and result.integrator().method == "product"
+    with pytest.raises(ValueError, match="warm_start"):
+        optimize(scene, data, progress=False, method="two-step", warm_start=0.3)
+    with pytest.raises(ValueError, match="warm_start"):
+        optimize(scene, data, progress=False, warm_start=1.0)

@@ -57,6 +57,7 @@ class OptimizeConfig:
     evaluate_views: int = 16         # held-out rotations rendered for the PSNR
     time_limit: float | None = None  # seconds of optimisation after which the run stops early (None: none)
     track_error_every: int = 0       # with a ground truth: record the stress error every this many iterations
+    warm_start: float = 0.0          # share of the run fitting the Two-step's unwrapped data before the joint fit
     seed: int = 0
     field: FieldConfig = field(default_factory=FieldConfig)
 
@@ -65,6 +66,11 @@ class OptimizeConfig:
             raise ValueError(f"method must be one of {METHODS}, got '{self.method}'")
         if self.pixel_samples is not None and int(self.pixel_samples) < 1:
             raise ValueError(f"'pixel_samples' must be a positive integer, got {self.pixel_samples}")
+        if not 0 <= self.warm_start < 1:
+            raise ValueError(f"'warm_start' is a share of the run in [0, 1), got {self.warm_start}")
+        if self.warm_start and self.method == "two-step":
+            raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
+                             "method 'two-step' is that fit already")
         if int(self.track_error_every) < 0:
             raise ValueError(f"'track_error_every' must be >= 0 (0: never), got {self.track_error_every}")
         for name in ("iterations", "batch_size", "views_per_batch", "checkpoint_every"):
@@ -156,8 +162,9 @@ class Reconstruction:
             return render(scene, **options)
 
 
-def make_integrator(config, stress_field):
-    """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid)."""
+def make_integrator(config, stress_field, method=None):
+    """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid);
+    ``method`` overrides the config's forward model."""
     step = config.step_size
     if step is None:
         extent = stress_field.bbox_max - stress_field.bbox_min
@@ -165,7 +172,8 @@ def make_integrator(config, stress_field):
             step = 0.5 * extent.max() / (max(grid_shape(config.field.resolution, extent)) - 1)
         else:
             step = float(extent.max()) / 64.0
-    method = "linear" if config.method == "two-step" else config.method
+    method = method or config.method
+    method = "linear" if method == "two-step" else method
     return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True})
 
 
@@ -283,7 +291,8 @@ class _Run:
         self.gradient_norms = []
         self.optimizer = self._optimizer()
         self.last_good = None
-        self.retardance = RetardanceTargets(dataset, config.mask) if config.method == "two-step" else None
+        self.retardance = (RetardanceTargets(dataset, config.mask)
+                           if config.method == "two-step" or config.warm_start else None)
         self.error_probe = None
         self.polariscopes = dataset.polariscopes()
 
@@ -308,8 +317,12 @@ class _Run:
     def _optimizer(self):
         return dr.opt.Adam(lr=self.config.learning_rate, params=self.field.parameters())
 
+    def fitting_retardance(self):
+        """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
+        return self.config.method == "two-step" or self.progress() < self.config.warm_start
+
     def integrator(self):
-        return make_integrator(self.config, self.field)
+        return make_integrator(self.config, self.field, "two-step" if self.fitting_retardance() else None)
 
     def learning_rate(self):
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
@@ -319,6 +332,7 @@ class _Run:
     def loop(self):
         config = self.config
         integrator = self.integrator()
+        phase = self.fitting_retardance()
         bar = None
         if self.show_progress:
             from tqdm import tqdm
@@ -332,6 +346,11 @@ class _Run:
         try:
             while self.iteration < config.iterations and not self.out_of_time():
                 self._refine_if_due()
+                if self.fitting_retardance() != phase:
+                    # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
+                    phase = self.fitting_retardance()
+                    integrator = self.integrator()
+                    self.optimizer = self._optimizer()
                 start = time.perf_counter()
                 loss = self.step(integrator)
                 elapsed = time.perf_counter() - start
@@ -374,7 +393,8 @@ class _Run:
         positions, rows, columns, targets = self.dataset.ray_batch(
             config.batch_size, self.rng, views_per_batch=config.views_per_batch, mask=config.mask)
         samples = self.pixel_samples
-        if self.retardance is not None:
+        fitting_retardance = self.fitting_retardance()
+        if fitting_retardance:
             targets = self.retardance.at(positions, rows, columns)
         rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
                                           jitter=stratified(len(rows), samples, self.rng))
@@ -390,7 +410,7 @@ class _Run:
         with dr.resume_grad():
             leaf = tuple(mi.Float(x) for x in state)
             dr.enable_grad(leaf)
-            if self.retardance is not None:
+            if fitting_retardance:
                 loss = generator_loss(leaf, targets, samples)
             else:
                 loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted, self.polariscopes)
@@ -417,7 +437,7 @@ class _Run:
         Two-step fit has unwrapped targets and a convex loss: no curriculum.
         """
         span = self.config.path_curriculum
-        if self.progress() >= span or self.retardance is not None:
+        if self.progress() >= span or self.fitting_retardance():
             return None
         extent = self.field.bbox_max - self.field.bbox_min
         shortest, longest = float(extent.min()), float(np.linalg.norm(extent))
