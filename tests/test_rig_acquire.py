@@ -203,7 +203,7 @@ def test_dry_run_prints_the_schedule_and_its_duration(tmp_path, capsys):
 @pytest.mark.parametrize("change, message", [
     (lambda t: t.replace("[devices]", "[devices]\nfocus = 'aptsim://f'"), r"\[devices\] has unknown key.*focus"),
     (lambda t: t.replace("azimuth = 'aptsim://azimuth'", ""), r"\[devices\] is missing 'azimuth'"),
-    (lambda t: t.replace("kind = 'twin'", "kind = 'genicam'"), "GenICam via Aravis or harvesters"),
+    (lambda t: t.replace("kind = 'twin'", "kind = 'aravis'"), r"'twin' \(the digital twin\) or 'genicam'"),
     (lambda t: t.replace("'aptsim://azimuth'", "'/dev/ttyUSB0'"), "must be azimuth = aptsim://NAME"),
     (lambda t: t.replace("azimuths = 2", "azimuths = 0"), r"\[schedule\]: rotation count"),
     (lambda t: t.replace("[camera.model]", "[camera.model]\nnoise = 0.1"), r"\[camera.model\] has unknown key"),

@@ -85,10 +85,19 @@ def _through_mosaic(names, stack):
 _BILINEAR = np.array([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
 
 
+def _interpolated(raw, analyser):
+    """Full-resolution image of one micro-polariser from a raw frame (bilinear over its own pixels)."""
+    mask = mosaic_mask(analyser, raw.shape).astype(np.float64)
+    return convolve(raw * mask, _BILINEAR, mode="mirror") / convolve(mask, _BILINEAR, mode="mirror")
+
+
 def _demosaic(names, stack):
-    out = []
-    for name, image in zip(names, stack):
-        mask = mosaic_mask(analyser_of(name), image.shape).astype(np.float64)
-        weight = convolve(mask, _BILINEAR, mode="mirror")
-        out.append(convolve(image * mask, _BILINEAR, mode="mirror") / weight)
-    return np.stack(out)
+    return np.stack([_interpolated(image, analyser_of(name)) for name, image in zip(names, stack)])
+
+
+def demosaic(raw):
+    """``{analyser: (H, W)}`` from a raw polarisation-camera frame ``(H, W)`` (the cell of :data:`MOSAIC`)."""
+    raw = np.asarray(raw, dtype=np.float64)
+    if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
+        raise ValueError(f"a raw mosaic frame is a 2D image of even size, got shape {raw.shape}")
+    return {analyser: _interpolated(raw, analyser) for analyser in sorted({a for row in MOSAIC for a in row})}

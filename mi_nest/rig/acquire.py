@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import format as fmt
+from ..dataset.camera import CameraModel
 from ..dataset.masks import ANALYSERS, dolp_mask
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
@@ -165,21 +166,41 @@ class TwinBackend:
         return images
 
     def index(self, config, rotations):
-        """``dataset.json`` fields of the twin's scene: camera reference, specimen centre, wavelength."""
-        from ..dataset.simulate import SimulationSettings, _index
-        from ..render import load_scene
-        camera = config.camera
-        width, height = camera.resolution
-        defines = {**camera.defines, "res": width}
-        scene = load_scene(camera.scene, **defines, spp=camera.spp)
-        settings = SimulationSettings(spp=camera.spp, test_fraction=config.schedule.test_fraction,
-                                      split_seed=config.schedule.split_seed, camera=camera.model,
-                                      dolp_threshold=config.dolp_threshold)
-        index = _index(scene, camera.scene, defines, settings, rotations)
-        if index["resolution"] != [width, height]:
-            raise AcquisitionError(f"the twin's scene {camera.scene} renders {index['resolution']}, the rig file "
-                                   f"asks for {[width, height]}; the scene's film must follow $res")
-        return index
+        return scene_index(config, rotations)
+
+    def close(self):
+        """Nothing to release: the twin renders in this process."""
+
+
+def scene_index(config, rotations):
+    """``dataset.json`` fields from the rig's scene: camera reference, specimen centre, material."""
+    from ..dataset.simulate import SimulationSettings, _index
+    from ..render import load_scene
+    camera = config.camera
+    width, height = camera.resolution
+    defines = {**camera.defines, "res": width}
+    spp = getattr(camera, "spp", 1)
+    scene = load_scene(camera.scene, **defines, spp=spp)
+    settings = SimulationSettings(spp=spp, test_fraction=config.schedule.test_fraction,
+                                  split_seed=config.schedule.split_seed,
+                                  camera=getattr(camera, "model", CameraModel()), dolp_threshold=config.dolp_threshold)
+    index = _index(scene, camera.scene, defines, settings, rotations)
+    if index["resolution"] != [width, height]:
+        raise AcquisitionError(f"the rig's scene {camera.scene} renders {index['resolution']}, the rig file asks for "
+                               f"{[width, height]}; the scene's film must follow $res")
+    if camera.kind != "twin":
+        # A real camera's noise is what it is: record the camera, not a simulated model.
+        index["camera_model"] = {"kind": camera.kind, "serial": camera.serial, "exposure": camera.exposure,
+                                 "white_level": camera.white_level}
+    return index
+
+
+def camera_backend(config, free_space=False):
+    """The camera of the rig file: the twin (free space: no specimen, for calibration) or a GenICam camera."""
+    if config.camera.kind == "genicam":
+        from .genicam import GenICamBackend
+        return GenICamBackend(config)
+    return TwinBackend(config, free_space=free_space)
 
 
 class Rig:
@@ -188,7 +209,7 @@ class Rig:
     def __init__(self, config, operator, free_space=False):
         self.config = config
         self.operator = operator
-        self.camera = TwinBackend(config, free_space=free_space)
+        self.camera = camera_backend(config, free_space=free_space)
         self.azimuth = self.elevation = self.qwp2 = None
         self.reopen()
 
@@ -196,7 +217,7 @@ class Rig:
         """Open (again, after a lost link) every driver; the devices keep their positions."""
         from .ell14 import ELL14
         from .hdr50 import HDR50
-        self.close()
+        self.close_drivers()
         devices = self.config.devices
         self.azimuth = HDR50(devices.azimuth, channel=devices.azimuth_channel)
         self.elevation = HDR50(devices.elevation, channel=devices.elevation_channel)
@@ -220,11 +241,15 @@ class Rig:
         """The measured (azimuth, elevation, qwp2), read back from the drivers."""
         return self.azimuth.position(), self.elevation.position(), self.qwp2.position()
 
-    def close(self):
+    def close_drivers(self):
         for driver in (self.azimuth, self.elevation, self.qwp2):
             if driver is not None:
                 driver.close()
         self.azimuth = self.elevation = self.qwp2 = None
+
+    def close(self):
+        self.close_drivers()
+        self.camera.close()
 
 
 def terminal_operator(message):

@@ -60,6 +60,24 @@ class TwinCamera:
 
 
 @dataclass(frozen=True)
+class GenICamCamera:
+    """A real polarisation camera through GenICam (``mi_nest.rig.genicam``, an optional extra).
+
+    ``scene`` (with ``defines``) describes the specimen, its material and the
+    camera's geometry, as measured on the rig: reconstruction needs them.
+    """
+    cti: str                             # the camera maker's GenTL producer
+    scene: str
+    defines: dict = field(default_factory=dict)
+    resolution: tuple = (2448, 2048)     # the raw frame, demosaicked to the same size
+    serial: str | None = None            # which camera, when several are connected
+    exposure: float = 0.05               # seconds
+    white_level: float = 4095.0          # raw counts of free space between parallel polarisers
+
+    kind = "genicam"
+
+
+@dataclass(frozen=True)
 class Schedule:
     azimuths: int = 25
     elevations: int = 16
@@ -86,7 +104,7 @@ class Timing:
 @dataclass(frozen=True)
 class RigConfig:
     devices: Devices
-    camera: TwinCamera
+    camera: TwinCamera | GenICamCamera
     schedule: Schedule = Schedule()
     timing: Timing = Timing()
     qwp1_mode: str = "manual"
@@ -149,10 +167,11 @@ def _dataclass_options(cls, table, where):
 
 def _camera(table):
     kind = table.get("kind")
+    if kind == "genicam":
+        return _genicam_camera(table)
     if kind != "twin":
-        raise RigConfigError(f"[camera] kind = {kind!r}: only the digital twin ('twin') is built in; real camera "
-                             "back-ends (GenICam via Aravis or harvesters, for the LUCID Phoenix) are optional "
-                             "extras that are not installed")
+        raise RigConfigError(f"[camera] kind = {kind!r}: 'twin' (the digital twin) or 'genicam' (a real "
+                             "polarisation camera through harvesters, an optional extra)")
     _take(table, "camera", required=("kind", "scene"),
           optional=("defines", "resolution", "supersample", "spp", "exposure", "model", "optics"))
     resolution = tuple(table.get("resolution", (32, 32)))
@@ -170,6 +189,19 @@ def _camera(table):
                       optics=_dataclass_options(Optics, table.get("optics", {}), "camera.optics"))
 
 
+def _genicam_camera(table):
+    _take(table, "camera", required=("kind", "cti", "scene"),
+          optional=("defines", "resolution", "serial", "exposure", "white_level"))
+    options = {k: v for k, v in table.items() if k != "kind"}
+    if "resolution" in options:
+        options["resolution"] = tuple(options["resolution"])
+    camera = GenICamCamera(**options)
+    if not camera.white_level > 0 or not camera.exposure > 0:
+        raise RigConfigError(f"[camera] white_level and exposure must be positive, got {camera.white_level}, "
+                             f"{camera.exposure}")
+    return camera
+
+
 def parse(data: dict, source=None) -> RigConfig:
     """A :class:`RigConfig` from the TOML document ``data`` (``source``: its path, for relative paths)."""
     _take(data, "top level", required=("devices", "camera"),
@@ -178,7 +210,7 @@ def parse(data: dict, source=None) -> RigConfig:
                     optional=("azimuth_channel", "elevation_channel", "qwp2_address"))
     devices = Devices(**devices)
     camera = _camera(data["camera"])
-    if not devices.simulated:
+    if camera.kind == "twin" and not devices.simulated:
         raise RigConfigError(f"[camera] kind = 'twin' renders what simulated devices report; the devices must be "
                              f"{', '.join(f'{n} = {s}://NAME' for n, s in SIMULATED_SCHEMES.items())}, got "
                              f"{asdict(devices)}")
