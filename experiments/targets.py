@@ -33,6 +33,7 @@ def main():
     parser.add_argument("--rotations", type=int, default=32)
     parser.add_argument("--res", type=int, default=64)
     parser.add_argument("--resolution", type=int, help="grid nodes along the longest axis (default: per scene)")
+    parser.add_argument("--warm-start", type=float, default=0.0, help="share of the run on the Two-step fit first")
     parser.add_argument("--output", type=Path, default=Path("experiments/out/targets"))
     args = parser.parse_args()
     rows, results = [], []
@@ -40,6 +41,8 @@ def main():
         defines, options = SCENES[name]
         if args.resolution:
             options = {**options, "resolution": args.resolution}
+        if args.warm_start:
+            options = {**options, "warm_start": args.warm_start}
         data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
         row, result = common.reconstruct(name, data, args.output, name, args.minutes, args.res, defines,
                                          track_error_every=500, **options)
