@@ -420,6 +420,18 @@ def test_renders_through_the_photoelastic_integrator(field):
     assert np.max(channels["char.delta"]) > 0.1
 
 
+def test_stacked_disks_spread_their_loads_like_single_disks():
+    stack = StackedDisksField(diameter=40.0, thickness=6.0, load=300.0, count=2.0, angle_step=45.0,
+                              contact_width=4.0)
+    for k in range(2):
+        disk = stack.disk_field(k)
+        assert disk.contact_width == 4.0
+        u = RNG.uniform(0, 1, (3, 100))
+        r, angle, w = 19.5 * np.sqrt(u[0]), 2 * np.pi * u[1], k * 6.0 + 5.9 * (u[2] - 0.5)
+        points = at(stack.center, stack.frame, r * np.cos(angle), r * np.sin(angle), w)
+        np.testing.assert_allclose(tensor(stack.eval(points)), tensor(disk.eval(points)), rtol=1e-9, atol=1e-9)
+
+
 def test_a_contact_width_spreads_the_load_and_keeps_it():
     point = DiskCompressionField(diameter=40.0, thickness=6.0, load=1000.0)
     spread = DiskCompressionField(diameter=40.0, thickness=6.0, load=1000.0, contact_width=4.0)

@@ -497,6 +497,7 @@ class StackedDisksField(StressField):
     center: tuple = (0.0, 0.0, 0.0)
     axis: tuple = (0.0, 0.0, 1.0)
     load_direction: tuple = (0.0, 1.0, 0.0)
+    contact_width: float = 0.0       # mm; each disk's loads spread as in ``disk_compression``
     frame: tuple = field(init=False, repr=False, compare=False)
     disk: DiskCompressionField = field(init=False, repr=False, compare=False)
 
@@ -512,7 +513,8 @@ class StackedDisksField(StressField):
         require_finite("center", *self.center)
         object.__setattr__(self, "frame", orthonormal_frame("axis", self.axis, "load_direction",
                                                             self.load_direction))
-        object.__setattr__(self, "disk", DiskCompressionField(self.diameter, self.thickness, self.load))
+        object.__setattr__(self, "disk", DiskCompressionField(self.diameter, self.thickness, self.load,
+                                                              contact_width=self.contact_width))
 
     def disk_center(self, k):
         offset = k * (self.thickness + self.gap)
@@ -524,7 +526,7 @@ class StackedDisksField(StressField):
         angle = math.radians(k * self.angle_step)
         direction = tuple(math.cos(angle) * a + math.sin(angle) * b for a, b in zip(e1, e2))
         return DiskCompressionField(self.diameter, self.thickness, self.load, self.disk_center(k),
-                                    axis, direction)
+                                    axis, direction, self.contact_width)
 
     def eval(self, p):
         e1, e2, axis = self.frame
