@@ -420,3 +420,9 @@ def test_driver_through_a_pseudo_terminal():
             assert stage.move_to(45) == 45.0
             assert stage.position() == 45.0
     assert device.counter == 3_379_200
+
+
+def test_a_port_that_echoes_is_no_controller():
+    """``loop://`` sends every request straight back (a HW_REQ_INFO is no HW_GET_INFO): refused, not hung."""
+    with pytest.raises(CommunicationError):
+        HDR50("loop://", timeout=0.05, retries=1)

@@ -451,3 +451,9 @@ def test_driver_works_through_a_kernel_pty():
             assert device.position == counts(315)
             device.inject("dropped_byte")
             assert driver.position() == pytest.approx(315, abs=0.01)
+
+
+def test_a_port_that_echoes_is_no_mount():
+    """``loop://`` sends every command straight back: the driver must refuse it quickly, not hang."""
+    with pytest.raises(CommunicationError):
+        ELL14("loop://", timeout=0.05, retries=1)
