@@ -89,6 +89,11 @@ def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     assert len(result.history) == 3 and np.isfinite(result.metrics["deviatoric_error"])
     # The error followed during the run ends where the final evaluation finds it.
     assert result.history[-1]["deviatoric_error"] == pytest.approx(result.metrics["deviatoric_error"], rel=1e-6)
+    # The path curriculum spans the paths the specimen really has: a disk's from its thickness up.
+    with np.load(tmp_path / "run" / "checkpoint.npz") as checkpoint:
+        shortest, longest = json.loads(str(checkpoint["path_range"]))
+    thickness, diameter = 6.0, 40.0
+    assert 0.99 * thickness <= shortest < longest <= 1.01 * np.hypot(thickness, diameter)
     assert 0 < result.metrics["test_psnr"] < 100
     saved = json.loads((tmp_path / "run" / "reconstruction.json").read_text())
     assert saved["metrics"]["deviatoric_error"] == result.metrics["deviatoric_error"]

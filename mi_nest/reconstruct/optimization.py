@@ -295,6 +295,7 @@ class _Run:
                            if config.method == "two-step" or config.warm_start else None)
         self.error_probe = None
         self.polariscopes = dataset.polariscopes()
+        self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -403,7 +404,7 @@ class _Run:
         seed = self.config.seed * 1_000_003 + self.iteration
         state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
         admitted = None
-        limit = self.path_limit()
+        limit = self.path_limit(length, samples)
         if limit is not None:
             # Opaque: a literal limit would rebuild the kernel every iteration.
             admitted = dr.select(dr.block_sum(length, samples) <= dr.opaque(mi.Float, samples * limit), 1.0, 0.0)
@@ -426,21 +427,30 @@ class _Run:
         self.optimizer.step()
         return value
 
-    def path_limit(self):
+    def path_limit(self, length, samples):
         """The longest path (mm) whose pixels enter the loss now; None: all.
 
         Retardance, and with it phase wrapping, grows with the path through the
-        specimen. Fitting short paths first (from the box's thinnest extent up to
-        its diagonal over the first ``path_curriculum`` of the iterations) gives
-        the longer ones a field that is already nearly right, instead of the
-        wrapped local minima a fit of all paths at once falls into. The
-        Two-step fit has unwrapped targets and a convex loss: no curriculum.
+        specimen. Fitting short paths first gives the longer ones a field that
+        is already nearly right, instead of the wrapped local minima a fit of
+        all paths at once falls into. The limit grows geometrically over the
+        first ``path_curriculum`` of the run, from the path that a tenth of the
+        pixels stay under to the longest, both measured on the first batch
+        (``length``: per ray, ``samples`` rays per pixel): the specimen's shape
+        sets them, not its bounding box, whose thinnest side can exceed every
+        path (the kitten's does). The Two-step fit has unwrapped targets and a
+        convex loss: no curriculum.
         """
         span = self.config.path_curriculum
         if self.progress() >= span or self.fitting_retardance():
             return None
-        extent = self.field.bbox_max - self.field.bbox_min
-        shortest, longest = float(extent.min()), float(np.linalg.norm(extent))
+        if self.path_range is None:
+            paths = np.array(dr.block_sum(length, samples)) / samples
+            paths = paths[paths > 0]
+            if paths.size == 0:
+                return None
+            self.path_range = (float(np.quantile(paths, 0.1)), float(paths.max()) * 1.01)
+        shortest, longest = self.path_range
         return shortest * (longest / shortest) ** (self.progress() / span)
 
     def _check_divergence(self, loss):
@@ -479,6 +489,7 @@ class _Run:
             state[f"adam.{name}.v"] = np.array(v)
         state.update({"iteration": self.iteration, "seconds": self.seconds,
                       "history": json.dumps(self.history), "rng": json.dumps(self.rng.bit_generator.state),
+                      "path_range": json.dumps(self.path_range),
                       "config": json.dumps(_plain_config(self.config)),
                       "dataset": str(self.dataset.directory.resolve())})
         with atomic_path(self.output / CHECKPOINT, ".npz") as tmp:
@@ -503,6 +514,7 @@ class _Run:
         self.seconds = float(state["seconds"])
         self.history = json.loads(str(state["history"]))
         self.rng.bit_generator.state = json.loads(str(state["rng"]))
+        self.path_range = json.loads(str(state["path_range"])) if "path_range" in state else None
         self.last_good = self.iteration
 
     def result(self):
