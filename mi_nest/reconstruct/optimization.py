@@ -437,8 +437,8 @@ class _Run:
         first ``path_curriculum`` of the run, from the path that a tenth of the
         pixels stay under to the longest, both measured on the first batch
         (``length``: per ray, ``samples`` rays per pixel): the specimen's shape
-        sets them, not its bounding box, whose thinnest side can exceed every
-        path (the kitten's does). The Two-step fit has unwrapped targets and a
+        sets them, not its bounding box, whose thinnest side can exceed most
+        paths (the kitten's does). The Two-step fit has unwrapped targets and a
         convex loss: no curriculum.
         """
         span = self.config.path_curriculum
