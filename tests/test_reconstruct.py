@@ -46,6 +46,18 @@ def test_fields_are_trace_free_and_survive_a_save(kind, tmp_path):
     assert loaded.field.describe() == field.describe()
 
 
+@pytest.mark.parametrize("kind", ["grid", "hashgrid", "mlp"])
+def test_fields_stay_bounded_a_hair_outside_their_box(kind):
+    """Samples on a specimen's surface can round outside the bounding box (the hash encoding then read
+    outside its tables: values of 1e26 ended an experiment as NaN)."""
+    field = make_field(FieldConfig(kind=kind, resolution=8, width=8, layers=1), (-1, -2, -3), (1, 2, 3), 1.0)
+    rng = np.random.default_rng(1)
+    inside = rng.uniform(-1, 1, (2000, 3)) * [1, 2, 3]
+    outside = inside * (1 + rng.uniform(0, 0.02, (2000, 1)))
+    values, near = metrics.sample(field, outside), metrics.sample(field, inside)
+    assert np.isfinite(values).all() and np.abs(values).max() < 10 * np.abs(near).max() + 1e-6
+
+
 def test_auto_picks_the_grid_until_it_grows_too_large():
     assert choose_kind(FieldConfig(resolution=64), (40, 40, 6)) == "grid"
     assert choose_kind(FieldConfig(resolution=256), (40, 40, 40)) == "hashgrid"

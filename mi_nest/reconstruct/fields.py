@@ -256,7 +256,9 @@ class HashGridField(_NeuralField):
         self.net = _network(config, config.levels * config.features_per_level, 1)
 
     def deviatoric(self, p):
-        return self._evaluate(self.encoding(self.unit_coordinates(p)))
+        # The encoding reads outside its tables for coordinates outside [0, 1] (values of 1e26 seen), and
+        # samples on the specimen's surface can round a hair outside the bounding box.
+        return self._evaluate(self.encoding(dr.clip(self.unit_coordinates(p), 0.0, 1.0)))
 
     def parameters(self):
         return {"encoding": self.encoding.data, "weights": self.net["weights"]}
