@@ -185,8 +185,10 @@ def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
 
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
     result = optimize(_scene(), tiny_dataset, output=tmp_path / "run", progress=False,
-                      **{**FAST, "iterations": 10_000, "time_limit": 0.2, "kind": "grid"})
+                      **{**FAST, "iterations": 10_000, "time_limit": 0.2, "kind": "grid", "track_error_every": 10_000})
     assert 1 <= len(result.history) < 10_000 and result.history[-1]["seconds"] >= 0.2
+    # The error is followed at its interval and at the last step, wherever the clock stopped the run.
+    assert "deviatoric_error" in result.history[0] and "deviatoric_error" in result.history[-1]
     assert (tmp_path / "run" / "checkpoint.npz").is_file()
     # The schedules follow the clock: the last learning rate is the final one.
     assert result.history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)

@@ -369,6 +369,9 @@ class _Run:
                     bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{config.batch_size * self.pixel_samples / elapsed:.3g}",
                                     refresh=False)
                     bar.update(min(elapsed, config.time_limit - bar.n) if timed else 1)
+            if self.error_probe is not None and self.history and "deviatoric_error" not in self.history[-1]:
+                # The run's last point too, however the tracking interval fell.
+                self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
         except KeyboardInterrupt:
             self.checkpoint()
             raise
