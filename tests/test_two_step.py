@@ -113,15 +113,21 @@ def test_unwrapping_a_rendered_disk_matches_its_fringe_order():
     assert np.quantile(np.abs(np.abs((back * q).sum(-1)) - 1)[inside], 0.99) < 1e-5
 
 
-def test_two_step_reconstruction_fits_the_unwrapped_data(tmp_path):
+@pytest.fixture(scope="module")
+def small_disk(tmp_path_factory):
+    """A 2 x 2 rotation dataset of the disk over 4 mm contacts at 16x16, and its scene."""
     from mi_nest.dataset import SimulationSettings, simulate
-    data = tmp_path / "disk"
+    data = tmp_path_factory.mktemp("data") / "disk"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         simulate("disk_compression", data, SimulationSettings(azimuths=2, elevations=2, res=16, spp=1,
                                                               test_fraction=0.25),
                  progress=False, defines={"load": 100, "contact_width": 4})
-    scene = mi_nest.load_scene("disk_compression", res=16, load=100, contact_width=4)
+    return data, mi_nest.load_scene("disk_compression", res=16, load=100, contact_width=4)
+
+
+def test_two_step_reconstruction_fits_the_unwrapped_data(small_disk):
+    data, scene = small_disk
     result = optimize(scene, data, progress=False, method="two-step", kind="grid", resolution=8, iterations=60,
                       batch_size=256, views_per_batch=3, learning_rate=0.1, pixel_samples=1, evaluate_views=1)
     losses = [h["loss"] for h in result.history]
@@ -130,16 +136,9 @@ def test_two_step_reconstruction_fits_the_unwrapped_data(tmp_path):
     assert result.integrator().method == "linear"
 
 
-def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(tmp_path, monkeypatch):
-    from mi_nest.dataset import SimulationSettings, simulate
+def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(small_disk, monkeypatch):
     from mi_nest.reconstruct import optimization
-    data = tmp_path / "disk"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        simulate("disk_compression", data, SimulationSettings(azimuths=2, elevations=2, res=16, spp=1,
-                                                              test_fraction=0.25),
-                 progress=False, defines={"load": 100, "contact_width": 4})
-    scene = mi_nest.load_scene("disk_compression", res=16, load=100, contact_width=4)
+    data, scene = small_disk
     models = []
     original = optimization.make_integrator
 
