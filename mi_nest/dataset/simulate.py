@@ -84,6 +84,12 @@ def specimen_shapes(scene):
     return shapes
 
 
+def specimen_bounds(shapes):
+    """``(low, high)``: the bounding box of the specimen ``shapes``, as NumPy arrays (mm)."""
+    return (np.min([np.array(s.bbox().min) for s in shapes], axis=0),
+            np.max([np.array(s.bbox().max) for s in shapes], axis=0))
+
+
 def specimen_media(scene):
     """The distinct stress media of the scene's specimens."""
     return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
@@ -91,8 +97,7 @@ def specimen_media(scene):
 
 def _index(scene, scene_file, defines, settings, rotations):
     shapes = specimen_shapes(scene)
-    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
-    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
     media = specimen_media(scene)
     film = scene.sensors()[0].film()

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 
 from .. import occupancy
+from ..dataset.simulate import specimen_bounds
 from ..fields.base import sample
 from ..io.grid import grid_nodes
 from .fields import deviatoric_part
@@ -28,8 +29,7 @@ class StressErrors:
 
 def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
     """A lattice over the specimens' bounding box, cell centres, kept where inside a specimen."""
-    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
-    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    low, high = specimen_bounds(shapes)
     spacing = (high - low).max() / points_per_axis
     axes = [np.arange(lo + 0.5 * spacing, hi, spacing) for lo, hi in zip(low, high)]
     lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

@@ -22,7 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..dataset import Dataset
-from ..dataset.simulate import specimen_media, specimen_shapes
+from ..dataset.simulate import specimen_bounds, specimen_media, specimen_shapes
 from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
 from ..render import load_scene
@@ -235,8 +235,7 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     if truth == "scene" and len({id(m.field) for m in media}) > 1:
         truth_field = None
 
-    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
-    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    low, high = specimen_bounds(shapes)
     scale = stress_scale(media, low, high)
     run = _Run(scene, dataset, config, low, high, scale, output, progress)
     if truth_field is not None and config.track_error_every:

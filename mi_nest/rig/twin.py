@@ -96,15 +96,14 @@ def scene_renderer(scene_file, defines, resolution, supersample=2, spp=1):
     ``(H * s, W * s)`` and the factor ``s``.
     """
     from ..dataset.schedule import Rotation, camera_to_world
-    from ..dataset.simulate import pose, reference_pose, specimen_shapes
+    from ..dataset.simulate import pose, reference_pose, specimen_bounds, specimen_shapes
     from ..render import load_scene, render
 
     width, _ = resolution
     scene = load_scene(scene_file, **{**dict(defines), "res": width * supersample, "spp": spp})
     reference = reference_pose(scene)
     shapes = specimen_shapes(scene)
-    low = np.min([np.array(s.bbox().min) for s in shapes], axis=0)
-    high = np.max([np.array(s.bbox().max) for s in shapes], axis=0)
+    low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
 
     def jones_of(azimuth, elevation):
