@@ -65,6 +65,17 @@ def test_auto_picks_the_grid_until_it_grows_too_large():
     assert grid_shape(5, (4.0, 2.0, 1.0)) == (5, 3, 2)
 
 
+@pytest.mark.parametrize("resolution, stages", [(6, [4, 6]), (16, [4, 8, 16]), (32, [8, 16, 32]),
+                                                (64, [8, 16, 32, 64]), (96, [12, 24, 48, 96])])
+def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, resolution, stages):
+    from mi_nest.reconstruct.optimization import _Run
+    config = OptimizeConfig(field=FieldConfig(kind="grid", resolution=resolution))
+    run = _Run(_scene(), mi_nest.Dataset(tiny_dataset), config, np.zeros(3), np.ones(3), 1.0, None, False)
+    assert [r for _, r in run.stages] == stages
+    starts = [s for s, _ in run.stages]
+    assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
+
+
 def test_refining_a_grid_keeps_a_linear_field():
     field = make_field(FieldConfig(kind="grid", resolution=3), (0, 0, 0), (2, 2, 2), 1.0)
     nodes = np.stack(np.meshgrid(*[np.linspace(0, 2, 3)] * 3, indexing="ij"), -1)      # x, y, z
