@@ -371,10 +371,11 @@ class _Acquisition:
             started = self.rig.clock.now()
             self.index = self.rig.camera.index(self.config, self.rotations)
             self._describe_source()
-            fmt.write_index(self.output, self.index)
             for rotation in self.rotations:
                 if self._complete(rotation, done):
                     self._assemble(rotation, done)
+            # Once after the rotations an earlier run completed, then as each new one completes.
+            fmt.write_index(self.output, self.index)
             todo = [f for f in self.frames if f.key not in done]
             if todo:
                 self.rig.home()
@@ -389,6 +390,7 @@ class _Acquisition:
                         bar.update()
                     if self._complete(frame.rotation, done):
                         self._assemble(frame.rotation, done)
+                        fmt.write_index(self.output, self.index)
                     if self.on_frame is not None:
                         self.on_frame(done[frame.key])
             finally:
@@ -487,7 +489,6 @@ class _Acquisition:
             write_channels(self.output / entry["file"], channels, half=True,
                            metadata={"mi_nest.rotation": rotation.index, "mi_nest.azimuth": azimuth,
                                      "mi_nest.elevation": elevation, "mi_nest.source": "captured"})
-        fmt.write_index(self.output, self.index)
 
 
 def acquire(config, output, operator=unattended_operator, progress=True, on_frame=None, on_retry=None):
