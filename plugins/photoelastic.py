@@ -576,7 +576,8 @@ ALIASED_FRACTION = 0.01
 def _check_aliasing(image):
     """Measure the fringe density of a developed image; warn if the intensities alias."""
     first = image.shape[-1] - len(CHANNELS)
-    order, length = (np.array(image[..., first + CHANNELS.index(name)]) for name in ("fringe.order", "path.length"))
+    pixels = image.numpy()      # shares the evaluated image's memory on the LLVM backend
+    order, length = (pixels[..., first + CHANNELS.index(name)] for name in ("fringe.order", "path.length"))
     report = aliasing.fringe_aliasing(order, length > 0)
     if report.fraction > ALIASED_FRACTION:
         import warnings

@@ -25,6 +25,14 @@ def test_density_is_the_order_step_between_neighbours(slope):
     assert report.resolution_factor == max(1, math.ceil(slope / NYQUIST))
 
 
+def test_percentile_is_numpys():
+    inside = disk_mask(40)
+    y, x = np.mgrid[:40, :40]
+    report = fringe_aliasing(0.01 * x ** 2 + 0.003 * y ** 2, inside)
+    assert report.percentile_99 == pytest.approx(np.quantile(report.densities, 0.99, method="lower"))
+    assert report.densest == report.densities.max() and report.densities.size == report.pixels
+
+
 def test_the_silhouette_is_not_a_fringe():
     inside = disk_mask(40)
     report = fringe_aliasing(np.where(inside, 12.0, 0.0), inside)

@@ -11,7 +11,8 @@ differentiated here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -24,7 +25,16 @@ class FringeAliasing:
     pixels: int          # specimen pixels with a specimen neighbour to compare with
     aliased: int         # of those, pixels more than NYQUIST orders from a neighbour
     densest: float       # fringe orders per pixel, largest
-    percentile_99: float  # fringe orders per pixel, 99th percentile over the specimen
+    densities: np.ndarray = field(repr=False, compare=False)   # fringe orders per pixel, one per counted pixel
+
+    @cached_property
+    def percentile_99(self):
+        """Fringe orders per pixel, 99th percentile over the specimen."""
+        # Computed on demand: a partial sort costs more than the rest of the check.
+        if self.densities.size == 0:
+            return 0.0
+        rank = int(0.99 * (self.densities.size - 1))
+        return float(np.partition(self.densities, rank)[rank])
 
     @property
     def fraction(self):
@@ -63,7 +73,5 @@ def fringe_aliasing(order, inside):
     density = np.maximum(down, right)
     values = density[density >= 0]
     if values.size == 0:
-        return FringeAliasing(0, 0, 0.0, 0.0)
-    rank = int(0.99 * (values.size - 1))
-    return FringeAliasing(int(values.size), int(np.count_nonzero(values > NYQUIST)), float(values.max()),
-                          float(np.partition(values, rank)[rank]))
+        return FringeAliasing(0, 0, 0.0, values)
+    return FringeAliasing(int(values.size), int(np.count_nonzero(values > NYQUIST)), float(values.max()), values)
