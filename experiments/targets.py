@@ -34,11 +34,14 @@ def main():
     parser.add_argument("--res", type=int, default=64)
     parser.add_argument("--resolution", type=int, help="grid nodes along the longest axis (default: per scene)")
     parser.add_argument("--warm-start", type=float, default=0.0, help="share of the run on the Two-step fit first")
+    parser.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a scene default of every scene run (e.g. -D load=150)")
     parser.add_argument("--output", type=Path, default=Path("experiments/out/targets"))
     args = parser.parse_args()
     rows, results = [], []
     for name in args.scenes:
         defines, options = SCENES[name]
+        defines = {**defines, **{k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}}
         if args.resolution:
             options = {**options, "resolution": args.resolution}
         if args.warm_start:

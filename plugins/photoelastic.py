@@ -568,18 +568,13 @@ def _warn_if_not_unitary(norm_error, step_size):
             RuntimeWarning, stacklevel=2)
 
 
-# Share of a specimen's pixels that may alias before a render warns: contact points and
-# notches are stress singularities, dense beyond any resolution in a few pixels.
-ALIASED_FRACTION = 0.01
-
-
 def _check_aliasing(image):
     """Measure the fringe density of a developed image; warn if the intensities alias."""
     first = image.shape[-1] - len(CHANNELS)
     pixels = image.numpy()      # shares the evaluated image's memory on the LLVM backend
     order, length = (pixels[..., first + CHANNELS.index(name)] for name in ("fringe.order", "path.length"))
     report = aliasing.fringe_aliasing(order, length > 0)
-    if report.fraction > ALIASED_FRACTION:
+    if report.aliases:
         import warnings
         warnings.warn(f"photoelastic: {report.describe()}: the intensities alias there. Render at "
                       f"{report.resolution_factor}x the resolution, or supersample (spp) to average the "

@@ -1,5 +1,6 @@
 """Multi-axis polariscope datasets: schedule, camera model, masks, format, resume, loader, CLI."""
 import json
+import warnings
 
 import mi_nest
 import numpy as np
@@ -13,6 +14,7 @@ from mi_nest.dataset.simulate import reference_pose
 from mi_nest.dataset.schedule import Rotation, angles, camera_to_world, rotation_grid
 from mi_nest.io.exr import write_channels
 from mi_nest.physics import MEASUREMENTS, su2
+from mi_nest.physics.aliasing import ALIASED_FRACTION, NYQUIST
 
 SMALL = SimulationSettings(azimuths=4, elevations=4, res=32, spp=1)
 
@@ -119,6 +121,20 @@ def test_dolp_mask_agrees_with_the_exact_occupancy(disk_dataset):
     assert report.mask_iou > 0.85
     view = Dataset(directory).view(0, ["mask.dolp", "mask.occupancy"])
     assert agreement(view["mask.dolp"] > 0.5, view["mask.occupancy"] > 0.5).recall > 0.9
+
+
+def test_the_index_counts_the_views_whose_fringes_alias(disk_dataset, tmp_path):
+    summary = Dataset(disk_dataset[0]).index["fringe_aliasing"]
+    # The shipped disk's point loads are singular: dense fringes at the contacts in every view.
+    assert summary["of"] == 16 and summary["views"] == 16 and summary["densest"] > NYQUIST
+    assert ALIASED_FRACTION < summary["mean_fraction"] <= summary["max_fraction"] < 1
+    # Forty times less load over wide contacts: every fringe resolved, in every view.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        simulate("disk_compression", tmp_path / "soft", SimulationSettings(azimuths=2, elevations=2, res=32, spp=1),
+                 defines={"load": 25, "contact_width": 8}, progress=False)
+    summary = Dataset(tmp_path / "soft").index["fringe_aliasing"]
+    assert summary["views"] == 0 and summary["of"] == 4 and 0 < summary["densest"] < NYQUIST
 
 
 def test_an_interrupted_simulation_resumes_to_an_identical_dataset(tmp_path, disk_dataset):

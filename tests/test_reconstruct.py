@@ -103,8 +103,11 @@ def test_stress_errors_are_relative_and_ignore_the_mean_stress():
 
 def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     scene = _scene()
-    result = optimize(scene, tiny_dataset, output=tmp_path / "run", progress=False, kind="grid",
-                      track_error_every=1, **FAST)
+    # At 8 x 8 pixels the load points' fringes alias: the run says so before it starts.
+    assert mi_nest.Dataset(tiny_dataset).index["fringe_aliasing"]["views"] > 0
+    with pytest.warns(RuntimeWarning, match=r"denser than the pixels .* in \d+ of 4 views"):
+        result = optimize(scene, tiny_dataset, output=tmp_path / "run", progress=False, kind="grid",
+                          track_error_every=1, **FAST)
     dataset = mi_nest.Dataset(tiny_dataset)
     start = make_field(result.field.config, result.field.bbox_min, result.field.bbox_max, result.field.stress_scale)
     integrator = mi.load_dict({"type": "photoelastic", "step_size": 1.0})

@@ -16,7 +16,8 @@ import mitsuba as mi
 import numpy as np
 
 from .. import __version__
-from ..io.exr import ExrFileError, read_channels, write_channels
+from ..io.exr import ExrFileError, read_channels, read_metadata, write_channels
+from ..physics.aliasing import ALIASED_FRACTION
 from ..render import SceneError, load_scene, render
 from ..render import scene_file as resolved_scene_file
 from . import format as fmt
@@ -182,6 +183,7 @@ def simulate(scene_file, output, settings=SimulationSettings(), defines=(), prog
             for e in index["rotations"]]
     index["complete"] = True
     index["mask_agreement"] = {"mean_iou": float(np.mean(ious)), "min_iou": float(np.min(ious))}
+    index["fringe_aliasing"] = _aliasing_summary(output, index["rotations"])
     fmt.write_index(output, index)
     return SimulationReport(output, rendered, kept, render_seconds, write_seconds, float(np.mean(ious)),
                             [str(w.message) for w in caught])
@@ -196,8 +198,24 @@ def _rotation(scene, output, entry, settings):
     pose(scene, entry["to_world"])
     result = render(scene, spp=settings.spp)
     middle = time.perf_counter()
-    _write_rotation(path, result.channels, entry, settings)
+    _write_rotation(path, result.channels, entry, settings, scene.integrator().aliasing)
     return middle - start, time.perf_counter() - middle
+
+
+def _aliasing_summary(output, rotations):
+    """How many views have fringes denser than their pixels, from each rotation file's render report."""
+    reports = [read_metadata(output / e["file"]) for e in rotations]
+    reports = [r for r in reports if ALIASED_KEY in r]
+    if not reports:
+        return None
+    fractions = [float(r[ALIASED_KEY]) for r in reports]
+    return {"views": sum(f > ALIASED_FRACTION for f in fractions), "of": len(fractions),
+            "mean_fraction": float(np.mean(fractions)), "max_fraction": max(fractions),
+            "densest": max(float(r[DENSEST_KEY]) for r in reports)}
+
+
+# Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
+ALIASED_KEY, DENSEST_KEY = "mi_nest.aliased_fraction", "mi_nest.densest_fringes"
 
 
 def json_round_trip(value):
@@ -215,11 +233,13 @@ def _is_complete(path):
         return False
 
 
-def _write_rotation(path, rendered, entry, settings):
+def _write_rotation(path, rendered, entry, settings, aliasing=None):
     measured = settings.camera.capture({name: rendered[name] for name in fmt.CHANNELS}, entry["index"])
     channels = dict(measured)
     channels["mask.dolp"] = dolp_mask(measured, settings.dolp_threshold).astype(np.float32)
     channels["mask.occupancy"] = (rendered["path.length"] > 0).astype(np.float32)
-    write_channels(path, channels, half=settings.half,
-                   metadata={"mi_nest.rotation": entry["index"], "mi_nest.azimuth": entry["azimuth"],
-                             "mi_nest.elevation": entry["elevation"]})
+    metadata = {"mi_nest.rotation": entry["index"], "mi_nest.azimuth": entry["azimuth"],
+                "mi_nest.elevation": entry["elevation"]}
+    if aliasing is not None:
+        metadata.update({ALIASED_KEY: f"{aliasing.fraction:.6g}", DENSEST_KEY: f"{aliasing.densest:.6g}"})
+    write_channels(path, channels, half=settings.half, metadata=metadata)

@@ -33,6 +33,18 @@ def write_channels(path, channels: dict, metadata: dict | None = None, half: boo
             exr.write(tmp)
 
 
+def read_metadata(path) -> dict:
+    """The header attributes ``write_channels`` stored (as strings), by name."""
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            # Copied inside: closing the file empties the dictionary it returned.
+            header = {key: value for key, value in exr.header().items() if isinstance(value, str)}
+    except Exception as error:  # OpenEXR raises bare RuntimeError/IOError on corrupt files
+        raise ExrFileError(f"{path}: not a readable EXR file ({error})") from error
+    return header
+
+
 def read_channels(path, names=None) -> dict:
     """Read channels by name as float32 ``(H, W)`` arrays; all of them when ``names`` is None."""
     path = Path(path)

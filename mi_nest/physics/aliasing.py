@@ -18,6 +18,9 @@ import numpy as np
 
 # Fringe orders per pixel above which the intensities alias (two pixels per fringe).
 NYQUIST = 0.5
+# Share of a specimen's pixels that may alias before an image counts as aliased: contact
+# points and notches are stress singularities, dense beyond any resolution in a few pixels.
+ALIASED_FRACTION = 0.01
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,11 @@ class FringeAliasing:
     @property
     def fraction(self):
         return self.aliased / self.pixels if self.pixels else 0.0
+
+    @property
+    def aliases(self):
+        """Whether more than ``ALIASED_FRACTION`` of the specimen's pixels alias."""
+        return self.fraction > ALIASED_FRACTION
 
     @property
     def resolution_factor(self):

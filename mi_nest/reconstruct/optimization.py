@@ -14,6 +14,7 @@ import contextlib
 import json
 import math
 import time
+import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from ..dataset import Dataset
 from ..dataset.simulate import specimen_bounds, specimen_media, specimen_shapes
 from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
+from ..physics.aliasing import NYQUIST
 from ..render import load_scene
 from . import metrics
 from .fields import (FieldConfig, TrainableField, choose_kind, field_from_state, grid_shape, make_field,
@@ -233,6 +235,7 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     shapes = specimen_shapes(scene)
     media = specimen_media(scene)
     _check_material(media, dataset)
+    _warn_if_aliased(dataset)
     truth_field = media[0].field if truth == "scene" else truth
     if truth == "scene" and len({id(m.field) for m in media}) > 1:
         truth_field = None
@@ -259,6 +262,19 @@ def stress_scale(media, low, high):
     """The stress (MPa) that gives about one fringe across the specimen: fields are stored in its units."""
     length = float(np.prod(high - low)) ** (1.0 / 3.0)
     return max(m.fringe_value for m in media) / length
+
+
+def _warn_if_aliased(dataset):
+    summary = dataset.index.get("fringe_aliasing")
+    if not summary or not summary["views"]:
+        return
+    warnings.warn(
+        f"{dataset.directory}: fringes are denser than the pixels (over {NYQUIST:g} order per pixel) in "
+        f"{summary['views']} of {summary['of']} views, over {100 * summary['mean_fraction']:.2g}% of the "
+        f"specimen's pixels on average, up to {summary['densest']:.3g} orders per pixel. Pixels there average "
+        "several fringes and no longer tell the phase: expect the largest errors there (stress concentrations) "
+        "and wrapped local minima; a finer camera, or a smaller load or stress-optic coefficient, resolves them",
+        RuntimeWarning, stacklevel=3)
 
 
 def _check_material(media, dataset):
