@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import mi_nest
+from mi_nest import occupancy
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.fields import UniformField
@@ -99,6 +100,42 @@ def test_stress_errors_are_relative_and_ignore_the_mean_stress():
     assert metrics.psnr(np.full(4, 0.5), np.full(4, 0.6)) == pytest.approx(20.0)
     with pytest.raises(ValueError, match="zero"):
         metrics.stress_errors(truth, UniformField(), points)
+
+
+@pytest.mark.parametrize("z", [0.0, 2.9])
+def test_points_inside_a_disk_are_found_on_a_lattice_through_its_triangle_fans(z):
+    scene = mi_nest.load_scene("disk_compression", res=8)
+    shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
+    x, y = np.meshgrid(*2 * [np.linspace(-20, 20, 97)])
+    points = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], -1)
+    radius = np.hypot(points[:, 0], points[:, 1])
+    clear = np.abs(radius - 20) > 0.3       # the mesh is a polygon: leave its rim alone
+    assert np.array_equal(occupancy.inside(scene, shapes, points)[clear], (radius < 20)[clear])
+
+
+def test_trilinear_basis_is_the_grid_fields_own_interpolation():
+    field = make_field(FieldConfig(kind="grid", resolution=6), (-2, -1, 0), (4, 1, 3), 2.0)
+    rng = np.random.default_rng(1)
+    nx, ny, nz = field.shape
+    nodes = rng.normal(size=(nz, ny, nx, 5)).astype(np.float32)
+    field.assign({"grid": mi.TensorXf(nodes)})
+    points = rng.uniform(field.bbox_min, field.bbox_max, (200, 3))
+    basis = metrics.trilinear_basis(points, field.bbox_min, field.bbox_max, field.shape)
+    sampled = metrics.deviatoric_part(metrics.sample(field, points))[:, [0, 1, 3, 4, 5]] / field.stress_scale
+    np.testing.assert_allclose(basis @ nodes.reshape(-1, 5), sampled, atol=2e-5)
+
+
+def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
+    scene = mi_nest.load_scene("disk_compression", res=8, load=200, contact_width=4)
+    shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
+    truth = shapes[0].interior_medium().field
+    points = metrics.evaluation_points(scene, shapes, 20)
+    field = make_field(FieldConfig(kind="grid", resolution=8), *metrics.specimen_bounds(shapes), 1.0)
+    sampled = metrics.representation_floor(field, truth, points)
+    best = metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
+    assert 0 < best < 0.8 * sampled
+    bending = mi_nest.fields.BeamBendingField(width=6.0, height=40.0, moment=1e4)
+    assert metrics.best_fit_floor(field, bending, scene, shapes, points, fit_points_per_axis=40) < 1e-4
 
 
 def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
