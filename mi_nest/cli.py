@@ -113,7 +113,7 @@ def _parser():
     for name, kind, default_help in (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
                                      ("resolution", int, "32 grid nodes along the longest axis"),
                                      ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
-                                     ("smoothness", float, "0"),
+                                     ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
                                      ("warm-start", float, "0: no Two-step warm start")):
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),

@@ -113,6 +113,17 @@ def test_points_inside_a_disk_are_found_on_a_lattice_through_its_triangle_fans(z
     assert np.array_equal(occupancy.inside(scene, shapes, points)[clear], (radius < 20)[clear])
 
 
+@pytest.mark.parametrize("resolution", [5, 9, 17])
+def test_smoothness_is_the_mean_squared_gradient_at_every_resolution(resolution):
+    """A field rising by ``slope`` across a cube: (slope / side)^2 along x, 0 along y and z, a third on average."""
+    slope, weight = 2.0, 0.25
+    field = make_field(FieldConfig(kind="grid", resolution=resolution, smoothness=weight), (0, 0, 0), (10, 10, 10), 1.0)
+    n = field.shape[0]
+    ramp = np.broadcast_to(slope * np.linspace(0, 1, n)[None, None, :, None], (n, n, n, 5))
+    field.assign({"grid": mi.TensorXf(np.ascontiguousarray(ramp, dtype=np.float32))})
+    assert float(field.regularization()[0]) == pytest.approx(weight * slope ** 2 / 3, rel=1e-5)
+
+
 def test_trilinear_basis_is_the_grid_fields_own_interpolation():
     field = make_field(FieldConfig(kind="grid", resolution=6), (-2, -1, 0), (4, 1, 3), 2.0)
     rng = np.random.default_rng(1)

@@ -33,7 +33,7 @@ class FieldConfig:
     """What to reconstruct with. ``kind="auto"`` picks the cheapest that fits (:func:`choose_kind`)."""
     kind: str = "auto"
     resolution: int = 32             # grid: nodes along the longest axis
-    smoothness: float = 0.0          # grid: weight of the squared-difference (Tikhonov) regulariser
+    smoothness: float = 0.0          # grid: weight of the mean squared gradient (lengths in box widths)
     levels: int = 8                  # hashgrid
     features_per_level: int = 2      # hashgrid
     hashmap_size: int = 2 ** 15      # hashgrid: entries per level
@@ -179,7 +179,11 @@ class DeviatoricGrid(TrainableField):
             self._pairs = _neighbour_pairs(self.shape)
         values = self.texture.tensor().array
         first, second = self._pairs
-        difference = dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)
+        # Differences per node spacing, lengths in units of the box's longest side: the mean squared
+        # gradient, the same for one field at every resolution, so coarse-to-fine stages are not
+        # smoothed harder than the final grid (squared differences grow with the spacing squared).
+        per_length = self.config.resolution - 1
+        difference = (dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)) * per_length
         return self.config.smoothness * dr.mean(dr.square(difference))
 
     def describe(self):
