@@ -202,6 +202,10 @@ def _rotation(scene, output, entry, settings):
     return middle - start, time.perf_counter() - middle
 
 
+# Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
+ALIASED_KEY, DENSEST_KEY = "mi_nest.aliased_fraction", "mi_nest.densest_fringes"
+
+
 def _aliasing_summary(output, rotations):
     """How many views have fringes denser than their pixels, from each rotation file's render report."""
     reports = [read_metadata(output / e["file"]) for e in rotations]
@@ -213,9 +217,6 @@ def _aliasing_summary(output, rotations):
             "mean_fraction": float(np.mean(fractions)), "max_fraction": max(fractions),
             "densest": max(float(r[DENSEST_KEY]) for r in reports)}
 
-
-# Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
-ALIASED_KEY, DENSEST_KEY = "mi_nest.aliased_fraction", "mi_nest.densest_fringes"
 
 
 def json_round_trip(value):

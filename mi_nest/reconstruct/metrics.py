@@ -82,20 +82,16 @@ class ErrorProbe:
 
 
 def representation_floor(field, truth, points):
-    """The deviatoric error of ``truth`` itself sampled into a grid like ``field``: the best it can reach.
+    """The deviatoric error of ``truth`` itself sampled into a grid like ``field`` (the best grid,
+    :func:`best_fit_floor`, does better near stress concentrations).
 
     Only for grids (None otherwise): singular fields (point loads) keep even a
     perfect reconstruction far from zero error at a finite resolution.
     """
     if getattr(field, "kind", None) != "grid":
         return None
-    from .fields import DeviatoricGrid
-    copy = DeviatoricGrid(field.config, field.bbox_min, field.bbox_max, field.stress_scale)
-    nx, ny, nz = copy.shape
-    nodes = deviatoric_part(sample(truth, grid_nodes(copy.bbox_min, copy.bbox_max, copy.shape)))
-    stored = nodes[:, [0, 1, 3, 4, 5]] / copy.stress_scale
-    copy.assign({"grid": mi.TensorXf(stored.reshape(nz, ny, nx, 5).astype(np.float32))})
-    return stress_errors(copy, truth, points).deviatoric
+    nodes = deviatoric_part(sample(truth, grid_nodes(field.bbox_min, field.bbox_max, field.shape)))
+    return _grid_error(field, nodes[:, [0, 1, 3, 4, 5]] / field.stress_scale, truth, points)
 
 
 def best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=3 * EVALUATION_POINTS):
@@ -110,7 +106,6 @@ def best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=3 * 
     if getattr(field, "kind", None) != "grid":
         return None
     import scipy.sparse.linalg
-    from .fields import DeviatoricGrid
     fit_points = evaluation_points(scene, shapes, fit_points_per_axis)
     target = deviatoric_part(sample(truth, fit_points))[:, [0, 1, 3, 4, 5]] / field.stress_scale
     basis = trilinear_basis(fit_points, field.bbox_min, field.bbox_max, field.shape)
@@ -118,9 +113,15 @@ def best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=3 * 
     nodes = np.stack([scipy.sparse.linalg.lsqr(basis, component, damp=1e-4, atol=1e-8, btol=1e-8,
                                                iter_lim=20 * basis.shape[1])[0]
                       for component in target.T], axis=-1)
+    return _grid_error(field, nodes, truth, points)
+
+
+def _grid_error(field, nodes, truth, points):
+    """The deviatoric error of a grid like ``field`` holding ``nodes`` (its five stored components, x fastest)."""
+    from .fields import DeviatoricGrid
     nx, ny, nz = field.shape
     copy = DeviatoricGrid(field.config, field.bbox_min, field.bbox_max, field.stress_scale)
-    copy.assign({"grid": mi.TensorXf(nodes.reshape(nz, ny, nx, 5).astype(np.float32))})
+    copy.assign({"grid": mi.TensorXf(np.asarray(nodes).reshape(nz, ny, nx, 5).astype(np.float32))})
     return stress_errors(copy, truth, points).deviatoric
 
 
