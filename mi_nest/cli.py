@@ -182,18 +182,19 @@ def _demo(output_dir, iterations=DEMO_ITERATIONS):
         warnings.simplefilter("ignore", RuntimeWarning)
         report = simulate(scene_path(DEFAULT_SCENE), out / "dataset", settings, defines=defines)
     print(report.describe())
-    aliasing = Dataset(out / "dataset").index.get("fringe_aliasing")
+    dataset = Dataset(out / "dataset")
+    aliasing = dataset.index.get("fringe_aliasing")
     if aliasing and aliasing["views"]:
         print(f"fringes denser than the pixels in {aliasing['views']} of {aliasing['of']} views, "
               f"over {100 * aliasing['mean_fraction']:.1f}% of the disk's pixels on average")
     loop_scene = load_scene(scene_path(DEFAULT_SCENE), res=DEMO_RES, **defines)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*fringes are denser than the pixels", RuntimeWarning)   # said above
-        reconstruction = optimize(loop_scene, out / "dataset", output=out / "reconstruction", kind="grid",
+        reconstruction = optimize(loop_scene, dataset, output=out / "reconstruction", kind="grid",
                                   resolution=16, iterations=iterations, batch_size=1024, learning_rate=0.05,
                                   final_learning_rate=0.002)
     print(reconstruction.describe())
-    written = write_test_view(loop_scene, reconstruction, out / "reconstruction", Dataset(out / "dataset"))
+    written = write_test_view(loop_scene, reconstruction, out / "reconstruction", dataset)
     comparison = _truth_beside_reconstruction(reconstruction, defines, out)
     print(f"relative deviatoric stress error: {100 * reconstruction.metrics['deviatoric_error']:.1f}% "
           f"(the true field sampled on a {reconstruction.field.describe()}: "

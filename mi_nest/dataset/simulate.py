@@ -218,7 +218,6 @@ def _aliasing_summary(output, rotations):
             "densest": max(float(r[DENSEST_KEY]) for r in reports)}
 
 
-
 def json_round_trip(value):
     return json.loads(json.dumps(value, default=fmt.plain))
 
