@@ -37,6 +37,9 @@ def main():
     parser.add_argument("--resolution", type=int, help="grid nodes along the longest axis (default: per scene)")
     parser.add_argument("--warm-start", type=float, default=0.0, help="share of the run on the Two-step fit first")
     parser.add_argument("--smoothness", type=float, default=0.0, help="weight of the grid's smoothness regulariser")
+    parser.add_argument("--final-smoothness", type=float, help="its weight at the end (decayed over the finest stage)")
+    parser.add_argument("--smoothness-edge", type=float, help="gradient above which the finest stage's penalty is linear")
+    parser.add_argument("--average-last", type=float, default=0.0, help="share of the run whose iterates are averaged")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                         help="override a scene default of every scene run (e.g. -D load=150)")
     parser.add_argument("--output", type=Path, default=Path("experiments/out/targets"))
@@ -51,6 +54,9 @@ def main():
             options = {**options, "warm_start": args.warm_start}
         if args.smoothness:
             options = {**options, "smoothness": args.smoothness}
+        for name in ("final_smoothness", "smoothness_edge", "average_last"):
+            if getattr(args, name):
+                options = {**options, name: getattr(args, name)}
         data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
         row, result = common.reconstruct(name, data, args.output, name, args.minutes, args.res, defines,
                                          track_error_every=500, **options)

@@ -114,6 +114,12 @@ def _parser():
                                      ("resolution", int, "32 grid nodes along the longest axis"),
                                      ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
                                      ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
+                                     ("final-smoothness", float, "the smoothness; its weight at the end, decayed "
+                                                                 "geometrically over the finest grid stage"),
+                                     ("smoothness-edge", float, "none; gradient above which the finest stage's "
+                                                                "smoothness penalty grows linearly (Charbonnier)"),
+                                     ("average-last", float, "0; share of the run at its end whose iterates are "
+                                                             "averaged into the result"),
                                      ("warm-start", float, "0: no Two-step warm start")):
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
@@ -299,8 +305,8 @@ def _reconstruct(args):
         raise ValueError(f"{args.dataset} does not name its scene; give --scene")
     defines = {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
     options = {"kind": args.kind}
-    for name in ("iterations", "batch_size", "resolution", "learning_rate", "step_size", "smoothness", "warm_start",
-                 "method"):
+    for name in ("iterations", "batch_size", "resolution", "learning_rate", "step_size", "smoothness", "final_smoothness",
+                 "smoothness_edge", "average_last", "warm_start", "method"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     from . import load_scene

@@ -1,6 +1,7 @@
 """Reconstruction: trainable fields, metrics, the optimiser (smoke, resume, divergence, options), CLI."""
 import json
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -75,6 +76,42 @@ def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, re
     assert [r for _, r in run.stages] == stages
     starts = [s for s, _ in run.stages]
     assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
+
+
+def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_over_the_finest(tiny_dataset):
+    from mi_nest.reconstruct.optimization import _Run
+    field = FieldConfig(kind="grid", resolution=32, smoothness=1e-2, final_smoothness=1e-4)
+    run = _Run(_scene(), mi_nest.Dataset(tiny_dataset), OptimizeConfig(iterations=100, field=field),
+               np.zeros(3), np.ones(3), 1.0, None, False)
+    weights = {}
+    for iteration in (0, 30, 50, 75, 100):
+        run.iteration = iteration
+        weights[iteration] = field.smoothness_at(run.smoothness_decayed())
+    assert weights[0] == weights[30] == weights[50] == 1e-2
+    assert weights[75] == pytest.approx(1e-3) and weights[100] == pytest.approx(1e-4)
+    assert FieldConfig(smoothness=1e-2).smoothness_at(0.7) == 1e-2
+    for final in (0.0, 2e-2):
+        with pytest.raises(ValueError, match="final_smoothness"):
+            FieldConfig(smoothness=1e-2, final_smoothness=final)
+
+
+def test_a_decaying_smoothness_reuses_its_kernels():
+    field = make_field(FieldConfig(kind="grid", resolution=6, smoothness=1e-2, final_smoothness=1e-4), (0, 0, 0),
+                       (1, 1, 1), 1.0)
+    optimizer = dr.opt.Adam(lr=1e-2, params=field.parameters())
+
+    def kernels_of_steps(decays):
+        dr.kernel_history()                     # clears it
+        for decayed in decays:
+            field.assign(optimizer)
+            dr.backward(field.regularization(decayed))
+            optimizer.step()
+        dr.eval(optimizer["grid"])
+        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        first = kernels_of_steps([0.0, 0.1])
+        assert kernels_of_steps([0.4, 0.7, 1.0]) <= first
 
 
 def test_refining_a_grid_keeps_a_linear_field():
@@ -175,15 +212,21 @@ def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     assert type(scene.shapes()[0].interior_medium().field).__name__ == "DiskCompressionField"
 
 
-def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, monkeypatch):
-    options = {**FAST, "iterations": 4, "checkpoint_every": 1, "kind": "grid"}
+# The finest stage (grid 6 after 4) starts at iteration 2 of 4; a 0.6 average takes iterations 2 and 3.
+REGULARISED_AND_AVERAGED = {"smoothness": 1e-3, "final_smoothness": 1e-4, "smoothness_edge": 1.0,
+                            "average_last": 0.6}
+
+
+@pytest.mark.parametrize("extra", [{}, REGULARISED_AND_AVERAGED], ids=["plain", "averaged"])
+def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, monkeypatch, extra):
+    options = {**FAST, "iterations": 4, "checkpoint_every": 1, "kind": "grid", **extra}
     whole = optimize(_scene(), tiny_dataset, output=tmp_path / "whole", progress=False, **options)
 
     from mi_nest.reconstruct import optimization as module
     original = module._Run.step
 
     def interrupted(self, integrator):
-        if self.iteration == 2:
+        if self.iteration == 3:
             raise KeyboardInterrupt
         return original(self, integrator)
 
@@ -193,10 +236,35 @@ def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, mon
     monkeypatch.setattr(module._Run, "step", original)
     resumed = optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
     assert [h["iteration"] for h in resumed.history] == [0, 1, 2, 3]
+    if extra:
+        with np.load(tmp_path / "cut" / "checkpoint.npz") as checkpoint:
+            assert int(checkpoint["iterates_averaged"]) == 2
     np.testing.assert_allclose(np.array(resumed.field.parameters()["grid"]), np.array(whole.field.parameters()["grid"]),
                                atol=1e-5)
     with pytest.raises(ValueError, match="another run"):
         optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **{**options, "iterations": 5})
+
+
+def test_the_result_is_the_mean_of_the_averaged_iterates(tiny_dataset, monkeypatch):
+    from mi_nest.reconstruct import optimization as module
+    original, iterates = module._Run.step, []
+
+    def recorded(self, integrator):
+        loss = original(self, integrator)
+        iterates.append(np.array(self.field.parameters()["grid"]))
+        return loss
+
+    monkeypatch.setattr(module._Run, "step", recorded)
+    result = optimize(_scene(), tiny_dataset, progress=False, **{**FAST, "iterations": 4, "kind": "grid",
+                                                                    **REGULARISED_AND_AVERAGED})
+    assert iterates[2].shape == iterates[3].shape != iterates[1].shape       # refined before iteration 2
+    np.testing.assert_allclose(np.array(result.field.parameters()["grid"]), (iterates[2] + iterates[3]) / 2,
+                               atol=1e-6)
+    assert not np.allclose(iterates[2], iterates[3])
+    with pytest.raises(ValueError, match="average_last"):
+        OptimizeConfig(average_last=1.0)
+    with pytest.raises(ValueError, match="smoothness_edge"):
+        FieldConfig(smoothness=1.0, smoothness_edge=-1.0)
 
 
 def test_divergence_is_reported_with_the_last_good_checkpoint(tiny_dataset, tmp_path, monkeypatch):

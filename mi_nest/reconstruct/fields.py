@@ -14,6 +14,7 @@ optimiser's variables), ``state()``/``from_state()`` (NumPy, for checkpoints).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import drjit as dr
@@ -34,6 +35,8 @@ class FieldConfig:
     kind: str = "auto"
     resolution: int = 32             # grid: nodes along the longest axis
     smoothness: float = 0.0          # grid: weight of the mean squared gradient (lengths in box widths)
+    final_smoothness: float | None = None  # grid: the weight at the end, decayed over the finest stage (None: constant)
+    smoothness_edge: float | None = None   # grid, finest stage: gradient above which the penalty grows linearly
     levels: int = 8                  # hashgrid
     features_per_level: int = 2      # hashgrid
     hashmap_size: int = 2 ** 15      # hashgrid: entries per level
@@ -55,6 +58,18 @@ class FieldConfig:
             raise ValueError(f"grid resolution must be at least 2, got {self.resolution}")
         if not self.smoothness >= 0:
             raise ValueError(f"smoothness must be non-negative, got {self.smoothness}")
+        if self.final_smoothness is not None and not 0 < self.final_smoothness <= self.smoothness:
+            raise ValueError(f"final_smoothness decays from smoothness ({self.smoothness}) and must lie in "
+                             f"(0, smoothness], got {self.final_smoothness}")
+        if self.smoothness_edge is not None and not (math.isfinite(self.smoothness_edge) and self.smoothness_edge > 0):
+            raise ValueError(f"smoothness_edge is a gradient (stress scales per box width) and must be positive, "
+                             f"got {self.smoothness_edge}")
+
+    def smoothness_at(self, decayed):
+        """The smoothness weight once ``decayed`` (0 to 1) of its geometric decay to ``final_smoothness`` is done."""
+        if self.final_smoothness is None:
+            return self.smoothness
+        return self.smoothness * (self.final_smoothness / self.smoothness) ** decayed
 
 
 # Above this many grid nodes a hash grid stores the same detail in less memory and fewer updates.
@@ -115,8 +130,12 @@ class TrainableField(StressField):
     def assign(self, values) -> None:
         raise NotImplementedError
 
-    def regularization(self):
-        """A penalty added to the loss (None: none)."""
+    def regularization(self, decayed=1.0, spare_edges=True):
+        """A penalty added to the loss (None: none).
+
+        ``decayed``: how far its weight has decayed (0 to 1); ``spare_edges``:
+        whether steep gradients are penalised less (the finest stage).
+        """
         return None
 
     def state(self) -> dict:
@@ -172,8 +191,9 @@ class DeviatoricGrid(TrainableField):
     def assign(self, values):
         self.texture.set_tensor(values["grid"])
 
-    def regularization(self):
-        if self.config.smoothness == 0:
+    def regularization(self, decayed=1.0, spare_edges=True):
+        weight = self.config.smoothness_at(decayed)
+        if weight == 0:
             return None
         if self._pairs is None:
             self._pairs = _neighbour_pairs(self.shape)
@@ -184,7 +204,15 @@ class DeviatoricGrid(TrainableField):
         # smoothed harder than the final grid (squared differences grow with the spacing squared).
         per_length = self.config.resolution - 1
         difference = (dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)) * per_length
-        return self.config.smoothness * dr.mean(dr.square(difference))
+        edge = self.config.smoothness_edge if spare_edges else None
+        if edge is None:
+            penalty = dr.square(difference)
+        else:
+            # Charbonnier: the squared gradient below the edge, growing only linearly above it, so stress
+            # concentrations keep their flanks while gentle ripples (poorly observed directions) are smoothed.
+            penalty = 2.0 * edge ** 2 * (dr.sqrt(1.0 + dr.square(difference / edge)) - 1.0)
+        # Opaque: a literal weight that decays would rebuild the gradient kernel every iteration.
+        return dr.opaque(mi.Float, weight) * dr.mean(penalty)
 
     def describe(self):
         return f"grid {'x'.join(map(str, self.shape))}"

@@ -62,6 +62,7 @@ class OptimizeConfig:
     time_limit: float | None = None  # seconds of optimisation after which the run stops early (None: none)
     track_error_every: int = 0       # with a ground truth: record the stress error every this many iterations
     warm_start: float = 0.0          # share of the run fitting the Two-step's unwrapped data before the joint fit
+    average_last: float = 0.0        # share of the run at its end whose iterates are averaged into the result
     seed: int = 0
     field: FieldConfig = field(default_factory=FieldConfig)
 
@@ -75,6 +76,8 @@ class OptimizeConfig:
         if self.warm_start and self.method == "two-step":
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")
+        if not 0 <= self.average_last < 1:
+            raise ValueError(f"'average_last' is a share of the run in [0, 1), got {self.average_last}")
         if int(self.track_error_every) < 0:
             raise ValueError(f"'track_error_every' must be >= 0 (0: never), got {self.track_error_every}")
         for name in ("iterations", "batch_size", "views_per_batch", "checkpoint_every"):
@@ -308,6 +311,7 @@ class _Run:
         self.gradient_norms = []
         self.optimizer = self._optimizer()
         self.last_good = None
+        self.iterate_sums, self.iterates_averaged = {}, 0
         self.retardance = (RetardanceTargets(dataset, config.mask)
                            if config.method == "two-step" or config.warm_start else None)
         self.error_probe = None
@@ -337,7 +341,9 @@ class _Run:
         return min(done, 1.0)
 
     def _optimizer(self):
-        return dr.opt.Adam(lr=self.config.learning_rate, params=self.field.parameters())
+        optimizer = dr.opt.Adam(lr=self.config.learning_rate, params=self.field.parameters())
+        self.field.assign(optimizer)
+        return optimizer
 
     def fitting_retardance(self):
         """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
@@ -350,6 +356,29 @@ class _Run:
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
         ratio = self.config.final_learning_rate / self.config.learning_rate
         return self.config.learning_rate * ratio ** self.progress()
+
+    def in_finest_stage(self):
+        return self.progress() >= self.stages[-1][0]
+
+    def averaging(self):
+        """Whether iterates now enter the averaged result: the run's last ``average_last``, finest stage only."""
+        return self.config.average_last > 0 and self.in_finest_stage() and \
+            self.progress() >= 1.0 - self.config.average_last
+
+    def _add_to_average(self):
+        # Polyak averaging: near the end Adam's iterates wander around the minimum, most along the
+        # directions the data constrain least; their mean lies closer to it than any one of them.
+        for name in self.optimizer.keys():
+            value = dr.detach(self.optimizer[name])
+            self.iterate_sums[name] = value if name not in self.iterate_sums else self.iterate_sums[name] + value
+        dr.eval(self.iterate_sums)
+        self.iterates_averaged += 1
+
+    def smoothness_decayed(self):
+        """How far the smoothness weight has decayed (0 to 1): over the finest stage, once the coarse stages
+        have chosen the branch that the regulariser is there to choose."""
+        start = self.stages[-1][0]
+        return min(1.0, max(0.0, (self.progress() - start) / (1.0 - start)))
 
     def loop(self):
         config = self.config
@@ -424,7 +453,6 @@ class _Run:
         rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
                                           jitter=stratified(len(rows), samples, self.rng))
         self.optimizer.set_learning_rate(self.learning_rate())
-        self.field.assign(self.optimizer)
         seed = self.config.seed * 1_000_003 + self.iteration
         state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
         admitted = None
@@ -440,7 +468,7 @@ class _Run:
             else:
                 loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted, self.polariscopes)
             total = loss
-            penalty = self.field.regularization()
+            penalty = self.field.regularization(self.smoothness_decayed(), spare_edges=self.in_finest_stage())
             if penalty is not None:
                 total = total + penalty
             dr.backward(total)
@@ -449,6 +477,10 @@ class _Run:
         value = float(total[0])
         self._check_divergence(value)
         self.optimizer.step()
+        # The field follows the optimiser's new values at once: checkpoints and the result hold this step.
+        self.field.assign(self.optimizer)
+        if self.averaging():
+            self._add_to_average()
         return value
 
     def path_limit(self, length, samples):
@@ -511,7 +543,9 @@ class _Run:
             state[f"adam.{name}.t"] = np.array(t)
             state[f"adam.{name}.m"] = np.array(m)
             state[f"adam.{name}.v"] = np.array(v)
-        state.update({"iteration": self.iteration, "seconds": self.seconds,
+        for name, total in self.iterate_sums.items():
+            state[f"average.{name}"] = np.array(total)
+        state.update({"iteration": self.iteration, "iterates_averaged": self.iterates_averaged, "seconds": self.seconds,
                       "history": json.dumps(self.history), "rng": json.dumps(self.rng.bit_generator.state),
                       "path_range": json.dumps(self.path_range),
                       "config": json.dumps(_plain_config(self.config)),
@@ -540,8 +574,15 @@ class _Run:
         self.rng.bit_generator.state = json.loads(str(state["rng"]))
         self.path_range = json.loads(str(state["path_range"])) if "path_range" in state else None
         self.last_good = self.iteration
+        parameters = self.field.parameters()
+        self.iterate_sums = {k[len("average."):]: type(parameters[k[len("average."):]])(v)
+                             for k, v in state.items() if k.startswith("average.")}
+        self.iterates_averaged = int(state.get("iterates_averaged", 0))
 
     def result(self):
+        """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
+        if self.iterates_averaged:
+            self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
         return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
 
 
