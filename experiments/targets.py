@@ -54,9 +54,9 @@ def main():
             options = {**options, "warm_start": args.warm_start}
         if args.smoothness:
             options = {**options, "smoothness": args.smoothness}
-        for name in ("final_smoothness", "smoothness_edge", "average_last"):
-            if getattr(args, name):
-                options = {**options, name: getattr(args, name)}
+        for option in ("final_smoothness", "smoothness_edge", "average_last"):
+            if getattr(args, option):
+                options = {**options, option: getattr(args, option)}
         data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
         row, result = common.reconstruct(name, data, args.output, name, args.minutes, args.res, defines,
                                          track_error_every=500, **options)
