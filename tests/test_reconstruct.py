@@ -78,6 +78,23 @@ def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, re
     assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
 
 
+def test_an_edge_spares_steep_gradients_and_keeps_gentle_ones_quadratic():
+    def penalty(slope, edge, spare_edges=True):
+        field = make_field(FieldConfig(kind="grid", resolution=9, smoothness=1.0, smoothness_edge=edge),
+                           (0, 0, 0), (10, 10, 10), 1.0)
+        ramp = np.broadcast_to(slope * np.linspace(0, 1, 9)[None, None, :, None], (9, 9, 9, 5))
+        field.assign({"grid": mi.TensorXf(np.ascontiguousarray(ramp, dtype=np.float32))})
+        return float(field.regularization(spare_edges=spare_edges)[0])
+
+    quadratic = 0.02 ** 2 / 3                      # a third of the pairs (along x) see the slope
+    assert penalty(0.02, edge=5.0) == pytest.approx(quadratic, rel=1e-4)
+    # Far above the edge the penalty grows linearly: 2 edge |slope|, not slope^2.
+    assert penalty(2000.0, edge=5.0) == pytest.approx(2 * 5.0 * 2000.0 / 3, rel=1e-2)
+    assert penalty(4000.0, edge=5.0) / penalty(2000.0, edge=5.0) == pytest.approx(2.0, rel=1e-2)
+    # Coarse stages keep the plain quadratic.
+    assert penalty(2000.0, edge=5.0, spare_edges=False) == pytest.approx(2000.0 ** 2 / 3, rel=1e-5)
+
+
 def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_over_the_finest(tiny_dataset):
     from mi_nest.reconstruct.optimization import _Run
     field = FieldConfig(kind="grid", resolution=32, smoothness=1e-2, final_smoothness=1e-4)

@@ -210,7 +210,9 @@ class DeviatoricGrid(TrainableField):
         else:
             # Charbonnier: the squared gradient below the edge, growing only linearly above it, so stress
             # concentrations keep their flanks while gentle ripples (poorly observed directions) are smoothed.
-            penalty = 2.0 * edge ** 2 * (dr.sqrt(1.0 + dr.square(difference / edge)) - 1.0)
+            # 2 edge^2 (sqrt(1 + (d / edge)^2) - 1), written without the cancellation of small gradients.
+            squared = dr.square(difference)
+            penalty = 2.0 * squared / (dr.sqrt(1.0 + squared / edge ** 2) + 1.0)
         # Opaque: a literal weight that decays would rebuild the gradient kernel every iteration.
         return dr.opaque(mi.Float, weight) * dr.mean(penalty)
 
