@@ -20,7 +20,11 @@ import common
 # Per scene: scene defines and reconstruction options (the grid's resolution follows the specimen).
 SCENES = {
     # Platens flatten a real disk: a 4 mm contact keeps the stress bounded (point loads are 1/r singular).
-    "disk_compression": ({"load": 300.0, "contact_width": 4.0}, {"kind": "grid", "resolution": 32}),
+    # 100 N: at 300 N the contacts' fringes alias in the axial view. Only a 64-node grid can reach 5% (best-fit
+    # floor 3.6%); the smoothness keeps the centre off the flipped branch, its edge spares the contacts.
+    "disk_compression": ({"load": 100.0, "contact_width": 4.0},
+                         {"kind": "grid", "resolution": 64, "smoothness": 1.3e-4, "smoothness_edge": 5.0,
+                          "average_last": 0.1}),
     # A third of the shipped scene's sensitivity (1500 N/mm, chosen for 256 x 256 renders): at 1500 the fringes
     # alias in 13% of the 64 x 64 pixels of the default view and the fit settles in wrapped minima.
     "kitten": ({"fringe_value": 4500.0}, {"kind": "grid", "resolution": 32}),
@@ -40,6 +44,7 @@ def main():
     parser.add_argument("--final-smoothness", type=float, help="its weight at the end (decayed over the finest stage)")
     parser.add_argument("--smoothness-edge", type=float, help="gradient above which the finest stage's penalty is linear")
     parser.add_argument("--average-last", type=float, default=0.0, help="share of the run whose iterates are averaged")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the ray batches and jitter")
     parser.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                         help="override a scene default of every scene run (e.g. -D load=150)")
     parser.add_argument("--output", type=Path, default=Path("experiments/out/targets"))
@@ -54,7 +59,7 @@ def main():
             options = {**options, "warm_start": args.warm_start}
         if args.smoothness:
             options = {**options, "smoothness": args.smoothness}
-        for option in ("final_smoothness", "smoothness_edge", "average_last"):
+        for option in ("final_smoothness", "smoothness_edge", "average_last", "seed"):
             if getattr(args, option):
                 options = {**options, option: getattr(args, option)}
         data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
