@@ -114,8 +114,8 @@ def _parser():
                                      ("resolution", int, "32 grid nodes along the longest axis"),
                                      ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
                                      ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
-                                     ("final-smoothness", float, "the smoothness; its weight at the end, decayed "
-                                                                 "geometrically over the finest grid stage"),
+                                     ("final-smoothness", float, "none, a constant weight; the weight at the end, "
+                                                                 "decayed geometrically over the finest grid stage"),
                                      ("smoothness-edge", float, "none; gradient above which the finest stage's "
                                                                 "smoothness penalty grows linearly (Charbonnier)"),
                                      ("average-last", float, "0; share of the run at its end whose iterates are "
