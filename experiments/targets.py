@@ -53,13 +53,8 @@ def main():
     for name in args.scenes:
         defines, options = SCENES[name]
         defines = {**defines, **{k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}}
-        if args.resolution:
-            options = {**options, "resolution": args.resolution}
-        if args.warm_start:
-            options = {**options, "warm_start": args.warm_start}
-        if args.smoothness:
-            options = {**options, "smoothness": args.smoothness}
-        for option in ("final_smoothness", "smoothness_edge", "average_last", "seed"):
+        for option in ("resolution", "warm_start", "smoothness", "final_smoothness", "smoothness_edge", "average_last",
+                       "seed"):
             if getattr(args, option):
                 options = {**options, option: getattr(args, option)}
         data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
