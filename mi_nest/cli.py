@@ -19,6 +19,20 @@ def _definition(text):
     return name, value
 
 
+# Numeric options of `mi-nest reconstruct` passed on to optimize: (flag, type, default and meaning).
+RECONSTRUCT_OPTIONS = (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
+                       ("resolution", int, "32 grid nodes along the longest axis"),
+                       ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
+                       ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
+                       ("final-smoothness", float, "none, a constant weight; the weight at the end, "
+                                                   "decayed geometrically over the finest grid stage"),
+                       ("smoothness-edge", float, "none; gradient above which the finest stage's "
+                                                  "smoothness penalty grows linearly (Charbonnier)"),
+                       ("average-last", float, "0; share of the run at its end whose iterates are "
+                                               "averaged into the result"),
+                       ("warm-start", float, "0: no Two-step warm start"))
+
+
 def _parser():
     parser = argparse.ArgumentParser(prog="mi-nest", description="Photoelastic stress tomography in Mitsuba 3.")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -110,17 +124,7 @@ def _parser():
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")
-    for name, kind, default_help in (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
-                                     ("resolution", int, "32 grid nodes along the longest axis"),
-                                     ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
-                                     ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
-                                     ("final-smoothness", float, "none, a constant weight; the weight at the end, "
-                                                                 "decayed geometrically over the finest grid stage"),
-                                     ("smoothness-edge", float, "none; gradient above which the finest stage's "
-                                                                "smoothness penalty grows linearly (Charbonnier)"),
-                                     ("average-last", float, "0; share of the run at its end whose iterates are "
-                                                             "averaged into the result"),
-                                     ("warm-start", float, "0: no Two-step warm start")):
+    for name, kind, default_help in RECONSTRUCT_OPTIONS:
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
@@ -305,8 +309,7 @@ def _reconstruct(args):
         raise ValueError(f"{args.dataset} does not name its scene; give --scene")
     defines = {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
     options = {"kind": args.kind}
-    for name in ("iterations", "batch_size", "resolution", "learning_rate", "step_size", "smoothness", "final_smoothness",
-                 "smoothness_edge", "average_last", "warm_start", "method"):
+    for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     from . import load_scene
