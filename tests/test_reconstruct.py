@@ -78,12 +78,18 @@ def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, re
     assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
 
 
+def _assign_ramp_along_x(field, slope):
+    """Every component of a cubic grid rising by ``slope`` across the box along x."""
+    n = field.shape[0]
+    ramp = np.broadcast_to(slope * np.linspace(0, 1, n)[None, None, :, None], (n, n, n, 5))
+    field.assign({"grid": mi.TensorXf(np.ascontiguousarray(ramp, dtype=np.float32))})
+
+
 def test_an_edge_spares_steep_gradients_and_keeps_gentle_ones_quadratic():
     def penalty(slope, edge, spare_edges=True):
         field = make_field(FieldConfig(kind="grid", resolution=9, smoothness=1.0, smoothness_edge=edge),
                            (0, 0, 0), (10, 10, 10), 1.0)
-        ramp = np.broadcast_to(slope * np.linspace(0, 1, 9)[None, None, :, None], (9, 9, 9, 5))
-        field.assign({"grid": mi.TensorXf(np.ascontiguousarray(ramp, dtype=np.float32))})
+        _assign_ramp_along_x(field, slope)
         return float(field.regularization(spare_edges=spare_edges)[0])
 
     quadratic = 0.02 ** 2 / 3                      # a third of the pairs (along x) see the slope
@@ -172,9 +178,7 @@ def test_smoothness_is_the_mean_squared_gradient_at_every_resolution(resolution)
     """A field rising by ``slope`` across a cube: (slope / side)^2 along x, 0 along y and z, a third on average."""
     slope, weight = 2.0, 0.25
     field = make_field(FieldConfig(kind="grid", resolution=resolution, smoothness=weight), (0, 0, 0), (10, 10, 10), 1.0)
-    n = field.shape[0]
-    ramp = np.broadcast_to(slope * np.linspace(0, 1, n)[None, None, :, None], (n, n, n, 5))
-    field.assign({"grid": mi.TensorXf(np.ascontiguousarray(ramp, dtype=np.float32))})
+    _assign_ramp_along_x(field, slope)
     assert float(field.regularization()[0]) == pytest.approx(weight * slope ** 2 / 3, rel=1e-5)
 
 
