@@ -154,14 +154,15 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         with self._prepared(scene, sensor):
             if not _sums_pixels_directly(sensor.film()):
                 image = super().render(scene, sensor, seed, spp, develop, evaluate)
+                guarded = _guarded_channels(image) if develop and isinstance(image, mi.TensorXf) else None
             elif not develop:
                 raise ValueError("photoelastic: develop=True must be specified")
             else:
-                image = self._render_pixel_sums(scene, sensor, seed, spp)
+                image, guarded = self._render_pixel_sums(scene, sensor, seed, spp)
             if self._norm_error is not None:
                 _warn_if_not_unitary(float(self._norm_error[0]), self._step)
-            if develop and isinstance(image, mi.TensorXf):
-                self.aliasing = _check_aliasing(image)
+            if guarded is not None:
+                self.aliasing = _check_aliasing(*guarded)
             return image
 
     def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
@@ -256,7 +257,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return tuple(dr.select(blocked, 0.0, x) for x in self.finish(state))
 
     def _render_pixel_sums(self, scene, sensor, seed, spp):
-        """``ADIntegrator.render`` for box-filtered films, without per-sample atomics."""
+        """``ADIntegrator.render`` for box-filtered films, without per-sample atomics.
+
+        Returns the developed image and, for the aliasing guard, its fringe order
+        and path length as contiguous ``(H, W)`` host arrays: read from the
+        interleaved image, every value would cost a cache line.
+        """
         film = sensor.film()
         with dr.suspend_grad():
             sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
@@ -269,9 +275,13 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
                 channels.append(one)
             channels += [one] + aovs
-            film.put_block(mi.ImageBlock(tensor=_pixel_sums(film, spp, channels), offset=film.crop_offset(),
-                                         rfilter=film.rfilter()))
-            return film.develop()
+            block, sums = _pixel_sums(film, spp, channels)
+            guarded = [sums[len(sums) - len(CHANNELS) + CHANNELS.index(name)]
+                       for name in FRINGE_CHANNELS + PATH_CHANNELS]
+            dr.eval(block, guarded)     # in the kernel that interleaves the channels
+            film.put_block(mi.ImageBlock(tensor=block, offset=film.crop_offset(), rfilter=film.rfilter()))
+            width, height = film.crop_size()
+            return film.develop(), tuple(x.numpy().reshape(height, width) / spp for x in guarded)
 
     def sample(self, mode, scene, sampler, ray, active, δL=None, δaovs=None, state_in=None, **kwargs):
         setup = self._setup
@@ -568,11 +578,15 @@ def _warn_if_not_unitary(norm_error, step_size):
             RuntimeWarning, stacklevel=2)
 
 
-def _check_aliasing(image):
-    """Measure the fringe density of a developed image; warn if the intensities alias."""
+def _guarded_channels(image):
+    """The fringe order and path length of a developed image, as ``(H, W)`` host arrays."""
     first = image.shape[-1] - len(CHANNELS)
     pixels = image.numpy()      # shares the evaluated image's memory on the LLVM backend
-    order, length = (pixels[..., first + CHANNELS.index(name)] for name in ("fringe.order", "path.length"))
+    return tuple(pixels[..., first + CHANNELS.index(name)] for name in FRINGE_CHANNELS + PATH_CHANNELS)
+
+
+def _check_aliasing(order, length):
+    """Measure the fringe density of a developed image; warn if the intensities alias."""
     report = aliasing.fringe_aliasing(order, length > 0)
     if report.aliases:
         import warnings
@@ -718,14 +732,15 @@ def _pixel_sums(film, spp, channels):
 
     ``ADIntegrator.sample_rays`` orders samples pixel by pixel, row-major, so a
     block reduction and one interleaving pass replace an atomic add per sample
-    and channel in ``ImageBlock.put``.
+    and channel in ``ImageBlock.put``. Also returns the per-pixel sums, one
+    array per channel.
     """
     width, height = film.crop_size()
     if spp > 1:
         dr.eval(channels)   # one march for all channels, not one per reduction
         channels = [dr.block_sum(channel, spp) for channel in channels]
     interleaved = dr.ravel(mi.ArrayXf(channels), order="F")
-    return mi.TensorXf(interleaved, (height, width, len(channels)))
+    return mi.TensorXf(interleaved, (height, width, len(channels))), channels
 
 
 class _SceneSetup:

@@ -51,13 +51,17 @@ def test_fringe_order_channel_is_unwrapped_where_the_retardance_folds():
     assert folded == pytest.approx(np.full((2, 2), 2 * math.pi * (order - 7)), abs=1e-4)
 
 
-def beam_render(res, orders_per_pixel, view=20.0):
+def beam_scene(res, orders_per_pixel, view=20.0, spp=1):
     """A beam in pure bending seen through its width: the order grows linearly across it."""
     width, height = 10.0, 30.0
     pixel = 2 * view / res
     moment = orders_per_pixel / pixel * (width * height ** 3 / 12) * WAVELENGTH / (BREWSTER * width)
     beam = medium("beam_bending", width=width, height=height, moment=moment)
-    loaded = scene([box((120, height, width), interior=beam)], res=res, view=view, step=10.0)
+    return scene([box((120, height, width), interior=beam)], res=res, view=view, step=10.0, spp=spp)
+
+
+def beam_render(res, orders_per_pixel, view=20.0):
+    loaded = beam_scene(res, orders_per_pixel, view)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = mi_nest.render(loaded)
@@ -74,3 +78,16 @@ def test_guard_warns_exactly_when_fringes_pass_nyquist():
     sampled, messages, result = beam_render(64, 0.4)
     assert sampled.densest == pytest.approx(0.4, rel=0.02)
     assert sampled.aliased == 0 and messages == [] and result.warnings == []
+
+
+@pytest.mark.parametrize("spp", [1, 4])
+def test_guard_measures_the_rendered_order(spp):
+    # The render hands the guard its own copy of the two channels, read in the march's kernel.
+    loaded = beam_scene(24, 0.3, spp=spp)
+    channels = mi_nest.render(loaded, passes=1).channels
+    report = loaded.integrator().aliasing
+    expected = fringe_aliasing(channels["fringe.order"], channels["path.length"] > 0)
+    assert 0 < expected.pixels < 24 * 24
+    assert (report.pixels, report.aliased) == (expected.pixels, expected.aliased)
+    assert report.densest == pytest.approx(expected.densest, rel=1e-6)
+    assert report.densities == pytest.approx(expected.densities, rel=1e-6, abs=1e-7)

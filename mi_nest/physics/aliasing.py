@@ -72,14 +72,22 @@ def fringe_aliasing(order, inside):
     inside = np.asarray(inside, dtype=bool)
     if order.shape != inside.shape or order.ndim != 2:
         raise ValueError(f"fringe_aliasing: order {order.shape} and inside {inside.shape} must be one 2D shape")
-    interior = inside.copy()
-    interior[0, :] = interior[-1, :] = interior[:, 0] = interior[:, -1] = False
-    interior[1:-1, 1:-1] &= inside[:-2, 1:-1] & inside[2:, 1:-1] & inside[1:-1, :-2] & inside[1:-1, 2:]
-    # Right and lower neighbour of each pixel, both interior; -1 marks pixels with neither.
-    down = np.where(interior[:-1, :-1] & interior[1:, :-1], np.abs(order[1:, :-1] - order[:-1, :-1]), -1.0)
-    right = np.where(interior[:-1, :-1] & interior[:-1, 1:], np.abs(order[:-1, 1:] - order[:-1, :-1]), -1.0)
-    density = np.maximum(down, right)
-    values = density[density >= 0]
+    # Interior pixels: inside, with all four neighbours inside.
+    interior = np.zeros_like(inside)
+    core = interior[1:-1, 1:-1]
+    np.logical_and(inside[1:-1, 1:-1], inside[:-2, 1:-1], out=core)
+    core &= inside[2:, 1:-1]
+    core &= inside[1:-1, :-2]
+    core &= inside[1:-1, 2:]
+    # Order step to the lower and to the right neighbour, where both pixels are interior (else -1).
+    top_left = interior[:-1, :-1]
+    has_down = top_left & interior[1:, :-1]
+    has_right = top_left & interior[:-1, 1:]
+    down = np.abs(order[1:, :-1] - order[:-1, :-1])
+    right = np.abs(order[:-1, 1:] - order[:-1, :-1])
+    down[~has_down] = -1.0
+    right[~has_right] = -1.0
+    values = np.maximum(down, right, out=down)[has_down | has_right]
     if values.size == 0:
         return FringeAliasing(0, 0, 0.0, values)
     return FringeAliasing(int(values.size), int(np.count_nonzero(values > NYQUIST)), float(values.max()), values)
