@@ -334,16 +334,18 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """
         d = mi.Vector3f(ray.d)
         coefficients = setup.projection_coefficients(d)
-        ray = mi.Ray3f(ray)
         origin = mi.Point3f(ray.o)
+        launch = mi.Point3f(ray.o)      # where the next intersection query starts
+        reach = mi.Float(ray.maxt)      # and how far it looks: the camera's range, then unbounded
         medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
         blocked = mi.Bool(False)
         length = mi.Float(0)
         crossings = mi.UInt32(0)
         active = mi.Bool(active)
 
-        while active:
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
+        # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
+        while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment, self, setup]):
+            si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths), ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
             hit = si.is_valid()
             hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
                                    dr.reinterpret_array(mi.UInt32, si.shape), hit)
@@ -362,7 +364,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             blocked |= hit & (hit_medium == 0)
             medium = dr.select(entering, hit_medium, 0)
             origin = mi.Point3f(si.p)
-            ray = mi.Ray3f(occupancy.past_surface(si, d), d)
+            launch = occupancy.past_surface(si, d)
+            reach = mi.Float(dr.inf)
             crossings += 1
             active &= hit & ~blocked & (crossings < self.max_crossings)
         return carry, blocked, length
@@ -398,7 +401,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def replay_chain(self, carry, state_grad, segment, setup):
         before, after = carry
         i = mi.UInt32(0)
-        while i < segment.steps:
+        while dr.hint(i < segment.steps, exclude=[segment, self, setup, state_grad]):
             with dr.resume_grad():
                 propagator, _ = self.step(i, segment, setup)
                 unit = dr.detach(propagator)
@@ -412,7 +415,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     @dr.syntax
     def replay_linear(self, state_grad, segment, setup):
         i = mi.UInt32(0)
-        while i < segment.steps:
+        while dr.hint(i < segment.steps, exclude=[segment, self, setup, state_grad]):
             with dr.resume_grad():
                 generator = self.generator_at(segment.point(i, self._offset(segment, i)), segment, setup)
                 dr.backward_from(segment.h * _dot(state_grad, generator))
@@ -458,7 +461,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         back = su2.identity(mi.Float(0))
         fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
-        while i < half:
+        while dr.hint(i < half, exclude=[half, segment, self, setup]):
             front_step, front_fringe = self.step(i, segment, setup)
             back_step, back_fringe = self.step(i + half, segment, setup)
             front = su2.multiply_renormalized(front, front_step)
@@ -506,7 +509,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """Midpoint (or jittered) sum of the generator over the segment (``linear``: exponentiated once per ray)."""
         total = (mi.Float(0), mi.Float(0), mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
-        while i < segment.steps:
+        while dr.hint(i < segment.steps, exclude=[segment, self, setup]):
             total = _axpy(segment.h, self.generator_at(segment.point(i, self._offset(segment, i)), segment, setup),
                           total)
             i += 1
@@ -523,7 +526,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         k = su2.identity(mi.Float(0))
         fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
-        while i < segment.steps:
+        while dr.hint(i < segment.steps, exclude=[h, segment, self, setup]):
             a0, am, a1 = (self.generator_at(segment.point(i, f), segment, setup) for f in (0.0, 0.5, 1.0))
             k1 = su2.multiply(k, a0)
             k2 = su2.multiply(_axpy(0.5 * h, k1, k), am)
