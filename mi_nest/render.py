@@ -123,17 +123,12 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     seconds = time.perf_counter() - start
     if passes > 1:
         total /= passes
-    names = _channel_names(film, total.shape[-1])
+    names = integrator.channel_names(film)
+    if len(names) != total.shape[-1]:
+        raise SceneError(f"film produced {total.shape[-1]} channels but names {names}")
     # Views into the (H, W, C) image: a transposing copy costs more than the render.
     channels = {name: total[..., index] for index, name in enumerate(names)}
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
                 "mi_nest.integrator": integrator.class_name()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata,
                         warnings=[str(w.message) for w in last_of_kind.values()])
-
-
-def _channel_names(film, count):
-    names = [str(f.name) for f in film.bitmap().struct_()]
-    if len(names) != count:
-        raise SceneError(f"film produced {count} channels but names {names}")
-    return names

@@ -138,6 +138,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     def aov_names(self):
         return list(CHANNELS)
 
+    def channel_names(self, film):
+        """Names of the channels of the image :meth:`render` returns, in order."""
+        if _sums_pixels_directly(film) and _develops_directly(film):
+            return _developed_names(film)
+        return [str(f.name) for f in film.bitmap().struct_()]
+
     def check_scene(self, scene, sensor=0):
         """Raise :class:`SceneSetupError` naming what the scene lacks.
 
@@ -275,13 +281,25 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
                 channels.append(one)
             channels += [one] + aovs
-            block, sums = _pixel_sums(film, spp, channels)
+            sums = _pixel_sums(spp, channels)
             guarded = [sums[len(sums) - len(CHANNELS) + CHANNELS.index(name)]
                        for name in FRINGE_CHANNELS + PATH_CHANNELS]
-            dr.eval(block, guarded)     # in the kernel that interleaves the channels
-            film.put_block(mi.ImageBlock(tensor=block, offset=film.crop_offset(), rfilter=film.rfilter()))
             width, height = film.crop_size()
-            return film.develop(), tuple(x.numpy().reshape(height, width) / spp for x in guarded)
+            if _develops_directly(film):
+                # What film.develop() would return, written by the march's own kernel: the film's
+                # put, conversion and normalisation passes cost a tenth of a 256-step render.
+                alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
+                developed = sums[:1] + sums[3:4 if alpha else 3] + sums[len(sums) - len(CHANNELS):]
+                image = _interleave([x / spp for x in developed], height, width)
+                dr.eval(image, guarded)
+                film.put_block(mi.ImageBlock(tensor=_film_sums(image, spp, alpha), offset=film.crop_offset(),
+                                             rfilter=film.rfilter()))
+            else:
+                block = _interleave(sums, height, width)
+                dr.eval(block, guarded)     # in the kernel that interleaves the channels
+                film.put_block(mi.ImageBlock(tensor=block, offset=film.crop_offset(), rfilter=film.rfilter()))
+                image = film.develop()
+            return image, tuple(x.numpy().reshape(height, width) / spp for x in guarded)
 
     def sample(self, mode, scene, sampler, ray, active, δL=None, δaovs=None, state_in=None, **kwargs):
         setup = self._setup
@@ -730,20 +748,49 @@ def _sums_pixels_directly(film):
         film.rfilter().border_size() == 0
 
 
-def _pixel_sums(film, spp, channels):
-    """Sum the ``spp`` consecutive samples of each pixel into an (H, W, C) image block tensor.
+def _develops_directly(film):
+    """Whether the integrator writes ``film.develop()``'s image itself: a monochrome HDR film,
+    whose image is luminance (and alpha) then the AOVs, each pixel's sum over its weight."""
+    return film.class_name() == "HDRFilm" and mi.is_monochromatic
+
+
+def _developed_names(film):
+    alpha = ["A"] if mi.has_flag(film.flags(), mi.FilmFlags.Alpha) else []
+    return ["Y"] + alpha + list(CHANNELS)
+
+
+def _pixel_sums(spp, channels):
+    """Sum the ``spp`` consecutive samples of each pixel, channel by channel.
 
     ``ADIntegrator.sample_rays`` orders samples pixel by pixel, row-major, so a
-    block reduction and one interleaving pass replace an atomic add per sample
-    and channel in ``ImageBlock.put``. Also returns the per-pixel sums, one
-    array per channel.
+    block reduction (then one interleaving pass) replaces an atomic add per
+    sample and channel in ``ImageBlock.put``.
     """
-    width, height = film.crop_size()
-    if spp > 1:
-        dr.eval(channels)   # one march for all channels, not one per reduction
-        channels = [dr.block_sum(channel, spp) for channel in channels]
-    interleaved = dr.ravel(mi.ArrayXf(channels), order="F")
-    return mi.TensorXf(interleaved, (height, width, len(channels))), channels
+    if spp == 1:
+        return channels
+    dr.eval(channels)   # one march for all channels, not one per reduction
+    return [dr.block_sum(channel, spp) for channel in channels]
+
+
+def _interleave(channels, height, width):
+    """``(H, W, C)`` image from one flat array per channel."""
+    return mi.TensorXf(dr.ravel(mi.ArrayXf(channels), order="F"), (height, width, len(channels)))
+
+
+def _film_sums(image, spp, alpha):
+    """The film's block (colour, alpha, weight, AOVs: pixel sums) rebuilt from a developed image.
+
+    Lazy: it costs nothing unless something reads the film (``film.bitmap()``,
+    ``film.write()``), and then only a gather from the evaluated image, not a new march.
+    """
+    height, width, count = image.shape
+    first_aov = 2 if alpha else 1
+    weight = count      # marks the weight channel: no source in the image
+    sources = [0, 0, 0] + ([1] if alpha else []) + [weight] + list(range(first_aov, count))
+    index = dr.arange(mi.UInt32, height * width * len(sources))
+    pixel, source = index // len(sources), dr.gather(mi.UInt32, mi.UInt32(sources), index % len(sources))
+    value = dr.gather(mi.Float, image.array, pixel * count + source, source != weight)
+    return mi.TensorXf(dr.select(source == weight, 1.0, value) * spp, (height, width, len(sources)))
 
 
 class _SceneSetup:

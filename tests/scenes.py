@@ -24,7 +24,8 @@ def box(size, center=(0.0, 0.0, 0.0), interior=None):
 
 def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, output_qwp=None,
           analyzer=0.0, origin=(0.0, 0.0, 100.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0),
-          projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified", **integrator):
+          projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified",
+          pixel_format="luminance", **integrator):
     """A photoelastic scene; the default camera looks down -z (image right +x, up +y)."""
     light = {"type": "polariscope_light", "polarizer": polarizer}
     if input_qwp is not None:
@@ -33,7 +34,7 @@ def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, 
     if projection == "orthographic":
         to_world = to_world @ mi.ScalarTransform4f().scale([view, view, 1.0])
     sensor = {"type": "polariscope", "projection": projection, "to_world": to_world,
-              "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "luminance",
+              "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": pixel_format,
                        "rfilter": {"type": "box"}},
               "sampler": {"type": sampler, "sample_count": spp}}
     if sampler == "stratified":

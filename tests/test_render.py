@@ -207,18 +207,28 @@ def test_perspective_rays_use_their_own_transverse_basis():
 
 
 @pytest.mark.parametrize("spp", [1, 4])
-def test_direct_pixel_sums_match_mitsubas_film_splatting(spp):
-    """The integrator's box-filter fast path gives what ADIntegrator.render's atomic splats give."""
+@pytest.mark.parametrize("pixel_format", ["luminance", "luminance_alpha"])
+def test_direct_pixel_sums_match_mitsubas_film_splatting(spp, pixel_format):
+    """The integrator's box-filter fast path gives what ADIntegrator.render's atomic splats and
+    the film's develop give, and leaves the film holding the same image."""
     field = medium("twisted", amplitude=0.6, rate=9.0, angle=30.0, origin=[0, 0, -10])
     scene_ = scene([box((20, 20, 20), interior=field)], res=6, view=14.0, sampler="independent", spp=spp,
-                   jitter=True)
+                   jitter=True, pixel_format=pixel_format)
     integrator = scene_.integrator()
+    film = scene_.sensors()[0].film()
     fast = np.array(mi.render(scene_, seed=3))
+    held = np.array(film.bitmap(), copy=True)
+    held_sums = np.array(film.develop(raw=True), copy=True)
+    names = integrator.channel_names(film)
     integrator._setup = integrator.check_scene(scene_)
     generic = np.array(mi.ad.integrators.common.ADIntegrator.render(integrator, scene_, seed=3))
     integrator._setup = None
-    assert fast.shape == generic.shape == (6, 6, 1 + len(mi_nest.plugins.photoelastic.CHANNELS))
+    np.testing.assert_allclose(held_sums, np.array(film.develop(raw=True)), atol=1e-5)
+    alpha = pixel_format.endswith("alpha")
+    assert fast.shape == generic.shape == (6, 6, 1 + alpha + len(mi_nest.plugins.photoelastic.CHANNELS))
+    assert names == [str(f.name) for f in film.bitmap().struct_()]
     np.testing.assert_allclose(fast, generic, atol=1e-6)
+    np.testing.assert_allclose(held, fast, atol=1e-6)
     assert fast[..., 0].std() > 0.01   # the box edges and jitter make pixels differ
 
 
