@@ -633,7 +633,7 @@ def _choose_method(setup, scene, sensor, tolerance):
     u = u - (u @ k) * k
     u /= np.linalg.norm(u)
     v = np.cross(k, u)
-    rates, chords = [], []
+    rates, lines = [], []
     for shape in scene.shapes():
         medium = shape.interior_medium()
         if medium is None or not hasattr(medium, "sample"):
@@ -654,8 +654,7 @@ def _choose_method(setup, scene, sensor, tolerance):
         generator = _generator_sampler(medium, u, v)
         p, q = generator(points.reshape(inside.shape + (3,)))
         rates.append(steps_analysis.analyse_lines(p, q, s[1] - s[0], inside))
-        hardest = steps_analysis.hardest_lines(p, q, inside, _AUTO_CHORDS)
-        chords.append((generator, *_chords(starts[hardest], k, crossings[:, hardest])))
+        lines.append((generator, p, q, inside, starts, crossings))
     if not rates:
         return "linear", _AUTO_FALLBACK_STEP, ("photoelastic auto: no analysis line crossed a specimen; "
                                                "linear model")
@@ -671,6 +670,10 @@ def _choose_method(setup, scene, sensor, tolerance):
             f"(retardance up to {combined.retardance_rate:.3g} rad/mm)")
     # Step doubling on the chords themselves: rates alone cannot tell a field that turns from one that
     # is merely strong (a constant generator is exact at any step) or jumps once at an interface.
+    chords = []
+    for generator, p, q, inside, starts, crossings in lines:
+        hardest = steps_analysis.hardest_lines(p, q, inside, _AUTO_CHORDS)
+        chords.append((generator, *_chords(starts[hardest], k, crossings[:, hardest])))
     step, error = min(steps_analysis.magnus4_step(generator, starts, -k, lengths, tolerance)
                       for generator, starts, lengths in chords)
     count = sum(len(lengths) for _, _, lengths in chords)
