@@ -102,7 +102,7 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     start = time.perf_counter()
     total = None
     # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's.
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, integrator.deciding_once(scene, sensor):
         warnings.simplefilter("always")
         for index in range(passes):
             try:

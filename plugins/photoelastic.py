@@ -127,6 +127,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if not (math.isfinite(self.tolerance) and self.tolerance > 0):
             raise ValueError(f"photoelastic: 'tolerance' must be positive, got {self.tolerance}")
         self.auto_choice = None
+        self._decided = None        # (method, step) that 'auto' keeps inside deciding_once()
         self.aliasing = None
         self.max_crossings = int(props.get("max_crossings", 64))
         if self.max_crossings < 2:
@@ -211,7 +212,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self._setup = _SceneSetup(scene, sensor, right)
         self._method, self._step = self.method, self.step_size
         try:
-            if self.method == "auto":
+            if self.method == "auto" and self._decided is not None:
+                self._method, self._step = self._decided
+            elif self.method == "auto":
                 self._method, self._step, self.auto_choice = _choose_method(self._setup, scene, sensor,
                                                                             self.tolerance)
                 logging.getLogger("mi_nest").info(self.auto_choice)
@@ -219,6 +222,26 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         finally:
             self._setup = None
             self._norm_error = None
+
+    @contextlib.contextmanager
+    def deciding_once(self, scene, sensor=0):
+        """Renders inside the block reuse one ``auto`` analysis, made on entry.
+
+        For several passes over one unchanged scene and camera (``mi_nest.render``
+        splits its samples so): the analysis costs about 10 ms whatever the
+        resolution. The scene must not change inside the block.
+        """
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        if self.method != "auto" or self._decided is not None:
+            yield
+            return
+        with self._prepared(scene, sensor):
+            self._decided = (self._method, self._step)
+        try:
+            yield
+        finally:
+            self._decided = None
 
     def _require_adjoint(self):
         if self._method == "rk4":

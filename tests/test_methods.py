@@ -120,6 +120,24 @@ def test_auto_picks_the_exact_linear_model_where_steps_commute():
     assert max(float(np.max(np.abs(channels[n] - reference[n]))) for n in MEASUREMENTS) < 1e-4
 
 
+def test_auto_analyses_once_for_all_passes_of_a_render(monkeypatch):
+    import mi_nest
+    import mitsuba as mi
+    from scenes import scene
+    photoelastic = mi_nest.plugins.photoelastic
+    analyses = []
+    choose = photoelastic._choose_method
+    monkeypatch.setattr(photoelastic, "_choose_method", lambda *args: analyses.append(args) or choose(*args))
+    field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
+    scene_ = scene([box((30, 30, DEPTH), interior=field)], res=2, spp=4, method="auto", tolerance=1e-3)
+    integrator = scene_.integrator()
+    mi_nest.render(scene_, passes=4)
+    assert len(analyses) == 1 and integrator.method == "auto" and integrator._decided is None
+    decided = (integrator._method, integrator._step)
+    mi.render(scene_)   # outside a render's passes every render analyses its scene again
+    assert len(analyses) == 2 and (integrator._method, integrator._step) == decided
+
+
 @pytest.mark.parametrize("tolerance", [1e-3, 1e-4])
 def test_auto_meets_its_tolerance_where_axes_turn(tolerance):
     field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
