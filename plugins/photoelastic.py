@@ -309,8 +309,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                        for name in FRINGE_CHANNELS + PATH_CHANNELS]
             width, height = film.crop_size()
             if _develops_directly(film):
-                # What film.develop() would return, written by the march's own kernel: the film's
-                # put, conversion and normalisation passes cost a tenth of a 256-step render.
+                # What film.develop() would return, written by the march's own kernel: the film's put,
+                # conversion and normalisation passes over the image cost 7% of a 256-step 256^2 render.
                 alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
                 developed = sums[:1] + sums[3:4 if alpha else 3] + sums[len(sums) - len(CHANNELS):]
                 image = _interleave([x / spp for x in developed], height, width)
@@ -386,7 +386,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
 
         # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
         while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment, self, setup]):
-            si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths), ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
+            si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
+                                     ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
             hit = si.is_valid()
             hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
                                    dr.reinterpret_array(mi.UInt32, si.shape), hit)
@@ -630,7 +631,7 @@ def _guarded_channels(image):
 
 
 def _check_aliasing(order, length):
-    """Measure the fringe density of a developed image; warn if the intensities alias."""
+    """Measure the fringe density of an image's order channel; warn if the intensities alias."""
     report = aliasing.fringe_aliasing(order, length > 0)
     if report.aliases:
         import warnings
