@@ -171,6 +171,29 @@ def test_ray_batches_come_from_inside_the_mask_of_the_training_rotations(disk_da
         np.testing.assert_array_equal(t, dataset.measurements(p)[r, c])
 
 
+@pytest.mark.parametrize("views_held", [None, 3])
+def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeypatch, views_held):
+    from mi_nest.dataset import loader
+    decoded = []
+    read = loader.read_channels
+    monkeypatch.setattr(loader, "read_channels", lambda path: decoded.append(path) or read(path))
+    dataset = Dataset(disk_dataset[0])
+    if views_held is not None:
+        dataset = Dataset(disk_dataset[0], cache_bytes=views_held * dataset._decoded(0).nbytes)
+        decoded.clear()
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        dataset.ray_batch(100, rng, views_per_batch=4)
+    train = len(dataset.split("train"))
+    assert len(dataset._cache) == (train if views_held is None else views_held)
+    if views_held is None:
+        assert sorted(decoded) == sorted(set(decoded)) and len(decoded) == train      # each file once
+    else:
+        assert len(decoded) > train      # evicted views are decoded again
+    with pytest.raises(ValueError, match="read-only"):
+        dataset.measurements(dataset.split("train")[0])[0, 0, 0] = 1.0
+
+
 def test_bad_input_is_reported_clearly(tmp_path, disk_dataset):
     directory = disk_dataset[0]
     with pytest.raises(ValueError, match="unknown channel"):

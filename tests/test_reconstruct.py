@@ -33,6 +33,34 @@ def _scene():
     return mi_nest.load_scene("disk_compression", res=8, load=200)
 
 
+@pytest.mark.parametrize("name", ["disk_compression", "twisted_block"])    # orthographic, perspective
+def test_batch_rays_are_the_camera_s_rays_at_each_rotation(name, tmp_path):
+    from mi_nest.dataset.simulate import pose, reference_pose
+    from mi_nest.reconstruct.rays import ViewRays
+    simulate(name, tmp_path, TINY, progress=False)
+    dataset = mi_nest.Dataset(tmp_path)
+    scene = mi_nest.load_scene(name, res=8)
+    sensor = scene.sensors()[0]
+    rng = np.random.default_rng(1)
+    positions, rows, columns = rng.integers(0, len(dataset), 200), rng.integers(0, 8, 200), rng.integers(0, 8, 200)
+    jitter = rng.random((200, 2))
+    rays, right = ViewRays(scene, dataset).rays(positions, rows, columns, jitter)
+    origins, directions, rights = (np.array(x).T for x in (rays.o, rays.d, right))
+    reference = reference_pose(scene)
+    for position in range(len(dataset)):
+        chosen = positions == position
+        pose(scene, dataset.to_world(position))
+        film = np.stack([(columns[chosen] + jitter[chosen, 0]) / 8, (rows[chosen] + jitter[chosen, 1]) / 8])
+        expected, _ = sensor.sample_ray(0.0, 0.0, mi.Point2f(film.astype(np.float32)), mi.Point2f(0.5, 0.5))
+        shape = origins[chosen].shape
+        np.testing.assert_allclose(origins[chosen], np.broadcast_to(np.array(expected.o).T, shape), atol=1e-4)
+        np.testing.assert_allclose(directions[chosen], np.broadcast_to(np.array(expected.d).T, shape), atol=1e-6)
+        axis = -dataset.to_world(position)[:3, 0]
+        np.testing.assert_allclose(rights[chosen], np.broadcast_to(axis / np.linalg.norm(axis), shape), atol=1e-6)
+    pose(scene, reference)
+    assert len(np.unique(positions)) == len(dataset) > 1
+
+
 @pytest.mark.parametrize("kind", ["grid", "hashgrid", "mlp"])
 def test_fields_are_trace_free_and_survive_a_save(kind, tmp_path):
     config = FieldConfig(kind=kind, resolution=5, levels=2, hashmap_size=256, width=8, layers=1, octaves=2)

@@ -1,8 +1,9 @@
 """``mi_nest.Dataset``: lazy access to a multi-axis polariscope dataset on disk.
 
-Views are decoded from their EXR on first use and kept in a small LRU cache, so
-a dataset larger than memory streams. Training draws random rays across
-rotations; evaluation reads whole views.
+Views are decoded from their EXR on first use and kept in an LRU cache of
+bounded size (1 GiB by default: a 1024-view dataset at 64 x 64 stays whole, so
+training decodes every file once), so a dataset larger than memory streams.
+Training draws random rays across rotations; evaluation reads whole views.
 """
 from __future__ import annotations
 
@@ -17,8 +18,30 @@ from ..physics import MEASUREMENTS
 from . import format as fmt
 
 
+# Memory the decoded views may hold, by default.
+CACHE_BYTES = 1 << 30
+
+
+class _DecodedView:
+    """One rotation's images, its measurements stacked as ``(H, W, C)`` and its mask pixels."""
+
+    def __init__(self, images, channels):
+        self.images = images
+        self.measured = np.stack([images[n] for n in channels], axis=-1)
+        self.measured.flags.writeable = False   # shared by every caller
+        self.mask_pixels = {}
+        self.nbytes = sum(a.nbytes for a in images.values()) + self.measured.nbytes
+
+    def pixels_inside(self, mask):
+        """Flat indices of the pixels where ``mask`` is set (None: all)."""
+        if mask not in self.mask_pixels:
+            self.mask_pixels[mask] = (np.arange(self.measured.shape[0] * self.measured.shape[1]) if mask is None
+                                      else np.flatnonzero(self.images[mask] > 0.5))
+        return self.mask_pixels[mask]
+
+
 class Dataset:
-    def __init__(self, directory, allow_incomplete=False, cache_views=64):
+    def __init__(self, directory, allow_incomplete=False, cache_bytes=CACHE_BYTES):
         self.directory = Path(directory)
         self.index = fmt.read_index(self.directory)
         if not self.index["complete"] and not allow_incomplete:
@@ -31,7 +54,8 @@ class Dataset:
         self.resolution = tuple(self.index["resolution"])        # (width, height)
         self.channels = tuple(self.index["channels"])
         self._cache = OrderedDict()
-        self._cache_views = max(1, int(cache_views))
+        self._cache_bytes = int(cache_bytes)
+        self._cached_bytes = 0
 
     def __len__(self):
         return len(self.rotations)
@@ -68,12 +92,15 @@ class Dataset:
     def view(self, position, channels=None):
         """``{name: (H, W) float32}`` of rotation ``position``: measurements and masks."""
         names = list(self.channels) if channels is None else list(channels)
+        self._require_channels(names)
+        images = self._decoded(position).images
+        return {n: images[n] for n in names}
+
+    def _require_channels(self, names):
         unknown = [n for n in names if n not in self.channels and n not in self.index.get("mask_channels", ())]
         if unknown:
             raise ValueError(f"unknown channel(s) {unknown}; the dataset has {list(self.channels)} and masks "
                              f"{self.index.get('mask_channels', [])}")
-        decoded = self._decoded(position)
-        return {n: decoded[n] for n in names}
 
     def _decoded(self, position):
         if position in self._cache:
@@ -92,15 +119,16 @@ class Dataset:
         missing = [n for n in self.channels if n not in decoded]
         if missing:
             raise fmt.DatasetError(f"{entry['file']}: missing channel(s) {missing}")
-        self._cache[position] = decoded
-        if len(self._cache) > self._cache_views:
-            self._cache.popitem(last=False)
-        return decoded
+        view = _DecodedView(decoded, self.channels)
+        self._cache[position] = view
+        self._cached_bytes += view.nbytes
+        while self._cached_bytes > self._cache_bytes and len(self._cache) > 1:
+            self._cached_bytes -= self._cache.popitem(last=False)[1].nbytes
+        return view
 
     def measurements(self, position):
-        """``(H, W, 16)`` in the order of ``channels``."""
-        view = self.view(position)
-        return np.stack([view[n] for n in self.channels], axis=-1)
+        """``(H, W, 16)`` in the order of ``channels`` (the cached array: do not modify it)."""
+        return self._decoded(position).measured
 
     def ray_batch(self, size, rng, split="train", views_per_batch=8, mask="mask.dolp"):
         """Random pixels across rotations: ``(positions, rows, columns, targets (N, 16))``.
@@ -115,12 +143,11 @@ class Dataset:
         chosen = rng.choice(pool, size=min(views_per_batch, len(pool)), replace=False)
         per_view = np.diff(np.linspace(0, size, len(chosen) + 1).round().astype(int))
         positions, rows, columns, targets = [], [], [], []
+        if mask is not None:
+            self._require_channels([mask])
         for position, count in zip(chosen, per_view):
-            measured = self.measurements(position)
-            if mask is None:
-                candidates = np.arange(measured.shape[0] * measured.shape[1])
-            else:
-                candidates = np.flatnonzero(self.view(position, [mask])[mask] > 0.5)
+            decoded = self._decoded(position)
+            measured, candidates = decoded.measured, decoded.pixels_inside(mask)
             if candidates.size == 0:
                 continue
             picked = rng.choice(candidates, size=count, replace=True)

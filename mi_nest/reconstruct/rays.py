@@ -4,7 +4,6 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
-from ..dataset.simulate import pose, reference_pose
 from ..render import SceneError
 
 
@@ -43,7 +42,6 @@ class ViewRays:
             raise SceneError(f"the scene's film is {size[0]}x{size[1]}, the dataset's images "
                              f"{dataset.resolution[0]}x{dataset.resolution[1]}; load the scene with the dataset's "
                              "resolution (e.g. res=...)")
-        self.reference = reference_pose(scene)
 
     def rays(self, positions, rows, columns, jitter=None):
         """``(mi.Ray3f, right)`` for pixels ``(rows, columns)`` of rotations ``positions``.
@@ -58,22 +56,19 @@ class ViewRays:
             jitter = np.full((len(rows), 2), 0.5)
         width, height = self.dataset.resolution
         film = np.stack([(columns + jitter[:, 0]) / width, (rows + jitter[:, 1]) / height], axis=-1)
-        origins = np.empty((len(rows), 3))
-        directions = np.empty((len(rows), 3))
-        rights = np.empty((len(rows), 3))
-        try:
-            for position in np.unique(positions):
-                chosen = positions == position
-                to_world = self.dataset.to_world(int(position))
-                pose(self.scene, to_world)
-                ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film[chosen].T.astype(np.float32)),
-                                                mi.Point2f(0.5, 0.5))
-                origins[chosen] = np.array(ray.o).T
-                directions[chosen] = np.array(ray.d).T
-                right = to_world[:3, :3] @ np.array([-1.0, 0.0, 0.0])
-                rights[chosen] = right / np.linalg.norm(right)
-        finally:
-            pose(self.scene, self.reference)
+        # The camera at rotation p is the camera as it stands moved by M_p = to_world_p current^-1, and so
+        # are its rays: one sampling pass serves every rotation of the batch.
+        ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film.T.astype(np.float32)), mi.Point2f(0.5, 0.5))
+        origins, directions = np.array(ray.o, dtype=np.float64).T, np.array(ray.d, dtype=np.float64).T
+        current = np.array(self.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+        views, index = np.unique(positions, return_inverse=True)
+        moves = np.stack([self.dataset.to_world(int(p)) for p in views]) @ np.linalg.inv(current)
+        linear = moves[index, :3, :3]
+        origins = np.einsum("nij,nj->ni", linear, origins) + moves[index, :3, 3]
+        directions = np.einsum("nij,nj->ni", linear, directions)
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        rights = np.stack([self.dataset.to_world(int(p))[:3, 0] for p in views])[index] * -1.0
+        rights /= np.linalg.norm(rights, axis=1, keepdims=True)
         return (mi.Ray3f(device_array(mi.Point3f, origins.T), device_array(mi.Vector3f, directions.T)),
                 device_array(mi.Vector3f, rights.T))
 
