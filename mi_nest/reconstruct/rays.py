@@ -59,7 +59,8 @@ class ViewRays:
         # The camera at rotation p is the camera as it stands moved by M_p = to_world_p current^-1, and so
         # are its rays: one sampling pass serves every rotation of the batch.
         ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film.T.astype(np.float32)), mi.Point2f(0.5, 0.5))
-        origins, directions = np.array(ray.o, dtype=np.float64).T, np.array(ray.d, dtype=np.float64).T
+        # An orthographic camera returns one direction for all rays.
+        origins, directions = (np.broadcast_to(np.array(x, dtype=np.float64).T, (len(rows), 3)) for x in (ray.o, ray.d))
         current = np.array(self.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
         views, index = np.unique(positions, return_inverse=True)
         moves = np.stack([self.dataset.to_world(int(p)) for p in views]) @ np.linalg.inv(current)
