@@ -32,7 +32,6 @@ class ViewRays:
     """Rays through pixels of any rotation of ``dataset``, from the scene's camera model."""
 
     def __init__(self, scene, dataset):
-        self.scene = scene
         self.dataset = dataset
         self.sensor = scene.sensors()[0]
         if not hasattr(self.sensor, "camera"):
@@ -60,16 +59,16 @@ class ViewRays:
         # are its rays: one sampling pass serves every rotation of the batch.
         ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film.T.astype(np.float32)), mi.Point2f(0.5, 0.5))
         # An orthographic camera returns one direction for all rays.
-        origins, directions = (np.broadcast_to(np.array(x, dtype=np.float64).T, (len(rows), 3)) for x in (ray.o, ray.d))
+        origins, directions = (np.broadcast_to(np.array(x, dtype=np.float64).T, (len(rows), 3))
+                               for x in (ray.o, ray.d))
         current = np.array(self.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
         views, index = np.unique(positions, return_inverse=True)
-        moves = np.stack([self.dataset.to_world(int(p)) for p in views]) @ np.linalg.inv(current)
-        linear = moves[index, :3, :3]
-        origins = np.einsum("nij,nj->ni", linear, origins) + moves[index, :3, 3]
-        directions = np.einsum("nij,nj->ni", linear, directions)
+        poses = np.stack([self.dataset.to_world(int(p)) for p in views])
+        moves = (poses @ np.linalg.inv(current))[index]
+        origins = np.einsum("nij,nj->ni", moves[:, :3, :3], origins) + moves[:, :3, 3]
+        directions = np.einsum("nij,nj->ni", moves[:, :3, :3], directions)
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        rights = np.stack([self.dataset.to_world(int(p))[:3, 0] for p in views])[index] * -1.0
-        rights /= np.linalg.norm(rights, axis=1, keepdims=True)
+        rights = -poses[index, :3, 0] / np.linalg.norm(poses[index, :3, 0], axis=1, keepdims=True)
         return (mi.Ray3f(device_array(mi.Point3f, origins.T), device_array(mi.Vector3f, directions.T)),
                 device_array(mi.Vector3f, rights.T))
 
