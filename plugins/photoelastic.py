@@ -300,18 +300,15 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             value = (main * weight)[0]
             # The channel layout of ADIntegrator._splat_to_block: colour, alpha, weight, AOVs.
             one = dr.full(mi.Float, 1.0, dr.width(value))
-            channels = [value, value, value]
-            if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
-                channels.append(one)
+            alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
+            channels = [value, value, value] + ([one] if alpha else [])
             channels += [one] + aovs
             sums = _pixel_sums(spp, channels)
-            guarded = [sums[len(sums) - len(CHANNELS) + CHANNELS.index(name)]
-                       for name in FRINGE_CHANNELS + PATH_CHANNELS]
+            guarded = [sums[i] for i in _guarded_positions(len(sums))]
             width, height = film.crop_size()
             if _develops_directly(film):
                 # What film.develop() would return, written by the march's own kernel: the film's put,
                 # conversion and normalisation passes over the image cost 7% of a 256-step 256^2 render.
-                alpha = mi.has_flag(film.flags(), mi.FilmFlags.Alpha)
                 developed = sums[:1] + sums[3:4 if alpha else 3] + sums[len(sums) - len(CHANNELS):]
                 image = _interleave([x / spp for x in developed], height, width)
                 dr.eval(image, guarded)
@@ -623,11 +620,16 @@ def _warn_if_not_unitary(norm_error, step_size):
             RuntimeWarning, stacklevel=2)
 
 
+def _guarded_positions(count):
+    """Where the aliasing guard's channels (fringe order, path length) sit among ``count`` channels
+    that end with the AOVs."""
+    return [count - len(CHANNELS) + CHANNELS.index(name) for name in FRINGE_CHANNELS + PATH_CHANNELS]
+
+
 def _guarded_channels(image):
     """The fringe order and path length of a developed image, as ``(H, W)`` host arrays."""
-    first = image.shape[-1] - len(CHANNELS)
     pixels = image.numpy()      # shares the evaluated image's memory on the LLVM backend
-    return tuple(pixels[..., first + CHANNELS.index(name)] for name in FRINGE_CHANNELS + PATH_CHANNELS)
+    return tuple(pixels[..., i] for i in _guarded_positions(image.shape[-1]))
 
 
 def _check_aliasing(order, length):
