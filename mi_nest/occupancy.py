@@ -33,7 +33,7 @@ def crossings_along_lines(scene, shape, starts, k):
         distance = dr.select(on_shape, dr.dot(si.p - origin, direction) - back, dr.inf)
         dr.eval(distance, active)
         crossings.append(np.array(distance))
-        if not dr.any(active):
+        if not np.array(active).any():
             break
         ray = mi.Ray3f(past_surface(si, direction), direction)
     return np.stack(crossings).astype(np.float64)

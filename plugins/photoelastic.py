@@ -662,7 +662,7 @@ def _choose_method(setup, scene, sensor, tolerance):
     rates, lines = [], []
     for shape in scene.shapes():
         medium = shape.interior_medium()
-        if medium is None or not hasattr(medium, "sample"):
+        if medium is None or not hasattr(medium, "phase_tensor"):
             continue
         box = shape.bbox()
         corners = np.array([[x, y, z] for x in (box.min.x, box.max.x) for y in (box.min.y, box.max.y)
@@ -711,10 +711,15 @@ def _choose_method(setup, scene, sensor, tolerance):
 
 def _generator_sampler(medium, u, v):
     """NumPy ``points -> (p, q)``: the step generator per mm of ``medium`` in the basis (u, v)."""
+    coefficients = projection.projection_coefficients(tuple(map(float, u)), tuple(map(float, v)))
+
     def generator(points):
-        stress = medium.sample(points).reshape(points.shape[:-1] + (6,))
-        p, q = projection.project(tuple(np.moveaxis(stress, -1, 0)), tuple(u), tuple(v))
-        return medium.phase_rate * p, medium.phase_rate * q
+        # One kernel from points to (p, q): projected where the field is sampled, two arrays come back, not six.
+        shape = points.shape[:-1]
+        flat = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        p, q = projection.apply_coefficients(coefficients, medium.phase_tensor(mi.Point3f(flat.T)))
+        dr.eval(p, q)
+        return tuple(np.broadcast_to(np.array(x, dtype=np.float64), (len(flat),)).reshape(shape) for x in (p, q))
     return generator
 
 

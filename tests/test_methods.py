@@ -138,6 +138,23 @@ def test_auto_analyses_once_for_all_passes_of_a_render(monkeypatch):
     assert len(analyses) == 2 and (integrator._method, integrator._step) == decided
 
 
+def test_auto_samples_the_generator_the_numpy_projection_gives():
+    import mi_nest
+    from mi_nest.physics import projection
+    scene_ = mi_nest.load_scene("kitten", res=8, spp=1)
+    medium_ = next(s.interior_medium() for s in scene_.shapes() if s.interior_medium() is not None)
+    u, v = np.array([0.6, 0.8, 0.0]), np.array([-0.48, 0.36, 0.8])
+    box_ = scene_.bbox()
+    points = np.random.default_rng(3).uniform(np.array(box_.min), np.array(box_.max), (4, 50, 3))
+    p, q = mi_nest.plugins.photoelastic._generator_sampler(medium_, u, v)(points)
+    stress = medium_.sample(points.reshape(-1, 3))
+    expected = projection.project(tuple(stress.T), tuple(u), tuple(v))
+    scale = medium_.phase_rate * np.abs(stress).max()
+    assert p.shape == q.shape == (4, 50) and scale > 0
+    for got, want in zip((p, q), expected):
+        np.testing.assert_allclose(got.ravel(), medium_.phase_rate * want, atol=1e-6 * scale)
+
+
 @pytest.mark.parametrize("tolerance", [1e-3, 1e-4])
 def test_auto_meets_its_tolerance_where_axes_turn(tolerance):
     field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)

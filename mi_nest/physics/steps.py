@@ -49,7 +49,8 @@ def analyse_lines(p, q, spacing, inside=None):
     p, q = np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)
     inside = np.ones(p.shape, dtype=bool) if inside is None else np.asarray(inside, dtype=bool)
     p, q = np.where(inside, p, 0.0), np.where(inside, q, 0.0)
-    magnitude = np.hypot(p, q)
+    # sqrt of squares, not np.hypot: several times faster here, and phase rates are nowhere near overflow.
+    magnitude = np.sqrt(p * p + q * q)
     largest = float(magnitude.max()) if magnitude.size else 0.0
     length = spacing * float(np.count_nonzero(inside, axis=-1).max(initial=0))
     if largest == 0.0:
@@ -71,9 +72,10 @@ def analyse_lines(p, q, spacing, inside=None):
     commuting = bool(spread.max() <= COMMUTING_ANGLE)
     curvature = 0.0
     if p.shape[-1] >= 3:
-        second = np.hypot(np.diff(p, 2, axis=-1), np.diff(q, 2, axis=-1)) / spacing ** 2
+        second_p, second_q = np.diff(p, 2, axis=-1), np.diff(q, 2, axis=-1)
         within = inside[:, :-2] & inside[:, 1:-1] & inside[:, 2:]
-        curvature = float(np.where(within, second, 0.0).max(initial=0.0))
+        squared = float(np.where(within, second_p * second_p + second_q * second_q, 0.0).max(initial=0.0))
+        curvature = squared ** 0.5 / spacing ** 2
     return FieldRates(commuting, 2.0 * largest, float(turn.max(initial=0.0)) / spacing, length, curvature)
 
 
