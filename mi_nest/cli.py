@@ -19,6 +19,8 @@ def _definition(text):
     return name, value
 
 
+# `mi-nest reconstruct --minutes` without --iterations: the clock alone ends the run.
+UNBOUNDED_ITERATIONS = 10 ** 9
 # Numeric options of `mi-nest reconstruct` passed on to optimize: (flag, type, default and meaning).
 RECONSTRUCT_OPTIONS = (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
                        ("resolution", int, "32 grid nodes along the longest axis"),
@@ -126,6 +128,9 @@ def _parser():
                              help="field representation (default: auto, the cheapest that fits)")
     for name, kind, default_help in RECONSTRUCT_OPTIONS:
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
+    reconstruct.add_argument("--minutes", type=float,
+                             help="optimise for this long; the learning rate and the coarse-to-fine stages then "
+                                  "follow the clock (with --iterations too, whichever ends first)")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
                                   "is the baseline: per-view unwrapping, then linear tomography)")
@@ -312,6 +317,11 @@ def _reconstruct(args):
     for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
+    if args.minutes is not None:
+        if not args.minutes > 0:
+            raise ValueError(f"--minutes must be positive, got {args.minutes}")
+        options["time_limit"] = 60.0 * args.minutes
+        options.setdefault("iterations", UNBOUNDED_ITERATIONS)
     from . import load_scene
     scene = load_scene(scene_file, **defines)
     result = optimize(scene, dataset, output=args.output, resume=not args.restart, progress=not args.no_progress,
