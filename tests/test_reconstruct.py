@@ -362,7 +362,7 @@ def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
     assert main(["reconstruct", str(tmp_path / "missing"), "-o", str(tmp_path / "x")]) == 2
 
 
-def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path):
+def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys):
     timed = ["reconstruct", str(tiny_dataset), "--batch-size", "64", "--resolution", "6", "--kind", "grid",
              "--no-progress", "--minutes"]
     assert main([*timed, "0.005", "-o", str(tmp_path / "result")]) == 0
@@ -371,6 +371,7 @@ def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path):
     assert history[-1]["seconds"] >= 0.3
     assert history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)
     assert main([*timed, "0", "-o", str(tmp_path / "x")]) == 2
+    assert "'time_limit' must be a positive number" in capsys.readouterr().err
 
 
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
