@@ -384,7 +384,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
         while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment, self, setup]):
             si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
-                                     ray_flags=mi.RayFlags.Minimal, coherent=True, active=active)
+                                     ray_flags=mi.RayFlags.Minimal, coherent=setup.coherent_rays, active=active)
             hit = si.is_valid()
             hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
                                    dr.reinterpret_array(mi.UInt32, si.shape), hit)
@@ -861,6 +861,9 @@ class _SceneSetup:
         if right is None:
             right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
         self._right = dr.normalize(mi.Vector3f(right))
+        # One camera's rays are coherent: Embree traced them 3.7x faster flagged so (512², the disk). A batch
+        # drawn across views is not: flagged coherent, the kitten's training batches traced 4 to 6% slower.
+        self.coherent_rays = sensor is not None
 
     def projection_coefficients(self, d):
         """Per ray, what turns :meth:`phase_tensor` into the step generator ``(p, q)``.
