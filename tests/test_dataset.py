@@ -179,13 +179,19 @@ def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeyp
     monkeypatch.setattr(loader, "read_channels", lambda path: decoded.append(path) or read(path))
     dataset = Dataset(disk_dataset[0])
     if views_held is not None:
-        dataset = Dataset(disk_dataset[0], cache_bytes=views_held * dataset._decoded(0).nbytes)
+        for p in dataset.split("train"):
+            dataset._decoded(p).pixels_inside("mask.dolp")          # counted too: a view holding them is larger
+        largest = max(sum(a.nbytes for a in (*v.images.values(), v.measured, *v.mask_pixels.values()))
+                      for v in map(dataset._decoded, dataset.split("train")))
+        dataset = Dataset(disk_dataset[0], cache_bytes=views_held * largest)
         decoded.clear()
     rng = np.random.default_rng(0)
     for _ in range(20):
         dataset.ray_batch(100, rng, views_per_batch=4)
     train = len(dataset.split("train"))
     assert len(dataset._cache) == (train if views_held is None else views_held)
+    held = [a for v in dataset._cache.values() for a in (*v.images.values(), v.measured, *v.mask_pixels.values())]
+    assert sum(a.nbytes for a in held) <= dataset._cache_bytes
     if views_held is None:
         assert sorted(decoded) == sorted(set(decoded)) and len(decoded) == train      # each file once
     else:

@@ -30,7 +30,12 @@ class _DecodedView:
         self.measured = np.stack([images[n] for n in channels], axis=-1)
         self.measured.flags.writeable = False   # shared by every caller
         self.mask_pixels = {}
-        self.nbytes = sum(a.nbytes for a in images.values()) + self.measured.nbytes
+
+    @property
+    def nbytes(self):
+        """Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far."""
+        return (sum(a.nbytes for a in self.images.values()) + self.measured.nbytes
+                + sum(a.nbytes for a in self.mask_pixels.values()))
 
     def pixels_inside(self, mask):
         """Flat indices of the pixels where ``mask`` is set (None: all)."""
@@ -55,7 +60,6 @@ class Dataset:
         self.channels = tuple(self.index["channels"])
         self._cache = OrderedDict()
         self._cache_bytes = int(cache_bytes)
-        self._cached_bytes = 0
 
     def __len__(self):
         return len(self.rotations)
@@ -121,10 +125,22 @@ class Dataset:
             raise fmt.DatasetError(f"{entry['file']}: missing channel(s) {missing}")
         view = _DecodedView(decoded, self.channels)
         self._cache[position] = view
-        self._cached_bytes += view.nbytes
-        while self._cached_bytes > self._cache_bytes and len(self._cache) > 1:
-            self._cached_bytes -= self._cache.popitem(last=False)[1].nbytes
+        self._keep_within_budget()
         return view
+
+    def _pixels_inside(self, position, mask):
+        view = self._decoded(position)
+        known = mask in view.mask_pixels
+        pixels = view.pixels_inside(mask)
+        if not known:
+            self._keep_within_budget()
+        return view, pixels
+
+    def _keep_within_budget(self):
+        # Recounted, not accumulated: a cached view grows when a mask's pixel indices are first asked for.
+        cached_bytes = sum(v.nbytes for v in self._cache.values())
+        while cached_bytes > self._cache_bytes and len(self._cache) > 1:
+            cached_bytes -= self._cache.popitem(last=False)[1].nbytes
 
     def measurements(self, position):
         """``(H, W, 16)`` in the order of ``channels`` (the cached array: do not modify it)."""
@@ -146,8 +162,8 @@ class Dataset:
         if mask is not None:
             self._require_channels([mask])
         for position, count in zip(chosen, per_view):
-            decoded = self._decoded(position)
-            measured, candidates = decoded.measured, decoded.pixels_inside(mask)
+            decoded, candidates = self._pixels_inside(position, mask)
+            measured = decoded.measured
             if candidates.size == 0:
                 continue
             picked = rng.choice(candidates, size=count, replace=True)
