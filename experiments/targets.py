@@ -16,12 +16,8 @@ import argparse
 from pathlib import Path
 
 import common
+from mi_nest.reconstruct import REGULARISED   # the same for every scene: set by hand on the 100 N disk, carried unchanged
 
-# The regulariser, the same for every scene (weight and edge are in stress scales per box width, so they do
-# not depend on a specimen's size or sensitivity): set by hand on the 100 N disk, then carried unchanged to
-# the kitten. The smoothness keeps the coarse stages off wrapped and flipped minima, its edge spares stress
-# concentrations in the finest stage, the last tenth's iterates are averaged.
-REGULARISED = {"smoothness": 1.3e-4, "smoothness_edge": 5.0, "average_last": 0.1}
 
 # Per scene: scene defines and reconstruction options (the grid's resolution follows the specimen).
 SCENES = {
