@@ -128,6 +128,9 @@ def _parser():
                              help="field representation (default: auto, the cheapest that fits)")
     for name, kind, default_help in RECONSTRUCT_OPTIONS:
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
+    reconstruct.add_argument("--regularised", action="store_true",
+                             help="the grid regulariser that met the targets (smoothness 1.3e-4, smoothness edge 5, "
+                                  "the last tenth's iterates averaged); the options above override its parts")
     reconstruct.add_argument("--minutes", type=float,
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")
@@ -308,14 +311,14 @@ def _show(args):
 
 def _reconstruct(args):
     from .dataset import Dataset
-    from .reconstruct import optimize
+    from .reconstruct import REGULARISED, optimize
     dataset = Dataset(args.dataset)
     source = dataset.index.get("source", {})
     scene_file = args.scene or source.get("scene")
     if scene_file is None:
         raise ValueError(f"{args.dataset} does not name its scene; give --scene")
     defines = {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
-    options = {"kind": args.kind}
+    options = {"kind": args.kind, **(REGULARISED if args.regularised else {})}
     for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)

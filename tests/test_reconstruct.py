@@ -11,7 +11,8 @@ from mi_nest import occupancy
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.fields import UniformField
-from mi_nest.reconstruct import DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, make_field, optimize
+from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, make_field,
+                                 optimize)
 from mi_nest.reconstruct import metrics
 from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
 from mi_nest.reconstruct.optimization import dataset_loss
@@ -141,6 +142,9 @@ def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_ove
     assert weights[0] == weights[30] == weights[50] == 1e-2
     assert weights[75] == pytest.approx(1e-3) and weights[100] == pytest.approx(1e-4)
     assert FieldConfig(smoothness=1e-2).smoothness_at(0.7) == 1e-2
+    for kind in ("hashgrid", "mlp"):
+        with pytest.raises(ValueError, match="grids only"):
+            FieldConfig(kind=kind, smoothness=1e-2)
     for final in (0.0, 2e-2):
         with pytest.raises(ValueError, match="final_smoothness"):
             FieldConfig(smoothness=1e-2, final_smoothness=final)
@@ -372,6 +376,20 @@ def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys
     assert history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)
     assert main([*timed, "0", "-o", str(tmp_path / "x")]) == 2
     assert "'time_limit' must be a positive number" in capsys.readouterr().err
+
+
+def test_cli_reconstructs_with_the_targets_regulariser_and_explicit_options_override_it(tiny_dataset, tmp_path,
+                                                                                       capsys):
+    common = ["reconstruct", str(tiny_dataset), "--iterations", "2", "--batch-size", "64", "--resolution", "6",
+              "--no-progress", "--regularised"]
+    assert main([*common, "--kind", "grid", "--smoothness", "1e-3", "-o", str(tmp_path / "grid")]) == 0
+    config = json.loads((tmp_path / "grid" / "reconstruction.json").read_text())["config"]
+    assert config["field"]["smoothness"] == 1e-3
+    assert config["field"]["smoothness_edge"] == REGULARISED["smoothness_edge"]
+    assert config["average_last"] == REGULARISED["average_last"]
+    # Other representations have no smoothness to regularise: refused, not ignored.
+    assert main([*common, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 2
+    assert "acts on grids only" in capsys.readouterr().err
 
 
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):

@@ -64,6 +64,10 @@ class FieldConfig:
         if self.smoothness_edge is not None and not (math.isfinite(self.smoothness_edge) and self.smoothness_edge > 0):
             raise ValueError(f"smoothness_edge is a gradient (stress scales per box width) and must be positive, "
                              f"got {self.smoothness_edge}")
+        if self.kind in ("hashgrid", "mlp") and (self.smoothness or self.smoothness_edge is not None):
+            # Silently ignored, a regulariser the user asked for would leave them comparing unlike runs.
+            raise ValueError(f"the smoothness regulariser acts on grids only, and this field is a '{self.kind}' "
+                             f"(give kind='grid', or drop smoothness, final_smoothness and smoothness_edge)")
 
     def smoothness_at(self, decayed):
         """The smoothness weight once ``decayed`` (0 to 1) of its geometric decay to ``final_smoothness`` is done."""
