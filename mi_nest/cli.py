@@ -129,8 +129,9 @@ def _parser():
     for name, kind, default_help in RECONSTRUCT_OPTIONS:
         reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
     reconstruct.add_argument("--regularised", action="store_true",
-                             help="the grid regulariser that met the targets (smoothness 1.3e-4, smoothness edge 5, "
-                                  "the last tenth's iterates averaged); the options above override its parts")
+                             help="the grid regulariser that met the targets (mi_nest.reconstruct.REGULARISED: a "
+                                  "smoothness with an edge, the last iterates averaged); the options above override "
+                                  "its parts")
     reconstruct.add_argument("--minutes", type=float,
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")

@@ -171,6 +171,11 @@ def test_ray_batches_come_from_inside_the_mask_of_the_training_rotations(disk_da
         np.testing.assert_array_equal(t, dataset.measurements(p)[r, c])
 
 
+def _bytes_held(view):
+    """Counted from the arrays a cached view holds, not from its own ``nbytes``."""
+    return sum(a.nbytes for a in (*view.images.values(), view.measured, *view.mask_pixels.values()))
+
+
 @pytest.mark.parametrize("views_held", [None, 3])
 def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeypatch, views_held):
     from mi_nest.dataset import loader
@@ -181,8 +186,7 @@ def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeyp
     if views_held is not None:
         for p in dataset.split("train"):
             dataset._decoded(p).pixels_inside("mask.dolp")          # counted too: a view holding them is larger
-        largest = max(sum(a.nbytes for a in (*v.images.values(), v.measured, *v.mask_pixels.values()))
-                      for v in map(dataset._decoded, dataset.split("train")))
+        largest = max(map(_bytes_held, map(dataset._decoded, dataset.split("train"))))
         dataset = Dataset(disk_dataset[0], cache_bytes=views_held * largest)
         decoded.clear()
     rng = np.random.default_rng(0)
@@ -190,8 +194,7 @@ def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeyp
         dataset.ray_batch(100, rng, views_per_batch=4)
     train = len(dataset.split("train"))
     assert len(dataset._cache) == (train if views_held is None else views_held)
-    held = [a for v in dataset._cache.values() for a in (*v.images.values(), v.measured, *v.mask_pixels.values())]
-    assert sum(a.nbytes for a in held) <= dataset._cache_bytes
+    assert sum(map(_bytes_held, dataset._cache.values())) <= dataset._cache_bytes
     if views_held is None:
         assert sorted(decoded) == sorted(set(decoded)) and len(decoded) == train      # each file once
     else:
