@@ -268,7 +268,7 @@ def numpy_render(field_eval, phase_rate, res, depth, steps, dtype):
 
 
 def twisted_closed_form(args, phase_rate):
-    """Jones quaternion of the twisted retarder (PHYSICS.md section 5): an independent check."""
+    """Jones quaternion of the twisted retarder (docs/physics.md section 5): an independent check."""
     from mi_nest.physics import su2
     from mi_nest.physics.polariscope import rotation
 

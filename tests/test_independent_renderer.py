@@ -2,7 +2,7 @@
 
 The specimen is a piecewise-constant stress field: three disjoint slabs (thin
 boxes stacked along z with air gaps), each with a different uniform in-plane
-stress, so each is a linear retarder (PHYSICS.md section 2) and the stack is a
+stress, so each is a linear retarder (docs/physics.md section 2) and the stack is a
 general, non-commuting product. mi_nest renders it (``photoelastic``
 integrator, ``llvm_ad_mono``) in an orthographic polariscope looking along -z;
 the main channel ``Y`` uses a generic polariscope (LP1 20, QWP1 65, QWP2 10,
@@ -15,31 +15,39 @@ variants cannot be mixed in one process): unpolarised area light -> LP1 ->
 QWP1 -> one retarder per slab (in the order light meets them) -> QWP2 -> LP2
 -> orthographic camera. Both renderers are exact for this field, so they must
 agree to float32 round-off; a third, tiny Jones-calculus evaluation of the
-PHYSICS.md ODE (matrix exponential of its generator) pins the reference itself.
+docs/physics.md ODE (matrix exponential of its generator) pins the reference itself.
 
 Convention mapping (light along +z, rectangles facing +z, image right u = +x,
-image up v = +y; an element "at angle t" has its axis at t from u towards v):
+image up v = +y; an element "at angle t" has its axis at t from u towards v,
+counter-clockwise looking toward the source, docs/physics.md section 1). Mitsuba's
+``retarder`` documents its fast axis along the rectangle's U and ``delta`` as the
+phase difference between fast and slow axes, so each element maps by what it is:
 
-* linear polariser at alpha       -> ``polarizer theta=alpha``
-* QWP, fast axis at beta           -> ``retarder delta=-90 theta=-beta``
-* slab, retardance Delta at theta  -> ``retarder delta=-Delta theta=-theta`` (degrees)
+* linear polariser at alpha          -> ``polarizer`` with its rectangle rotated by alpha
+* QWP, fast axis at beta              -> ``retarder delta=90``, fast axis (rectangle) at beta
+* slab, retardance Delta, its larger
+  principal stress (slow axis) at theta -> ``retarder delta=Delta``, fast axis at theta + 90
 * unpolarised light loses half at LP1: intensities are divided by a render of
-  free space between parallel polarisers (0.5), which is 1 by PHYSICS.md.
+  free space between parallel polarisers (0.5), which is 1 by docs/physics.md.
 
 Intensities alone fix this mapping only up to two symmetries that leave every
-intensity unchanged: mirroring all angles at once (t -> -t for every element)
-and conjugating all retarders at once (delta -> -delta for every retarder). So
-``polarizer theta=-alpha`` with ``retarder theta=+theta`` is the same mapping;
-it is also the geometric one: rotating an element's rectangle by t about +z
-turns a Mitsuba retarder like ``theta=+t`` but a Mitsuba polariser like
-``theta=-t`` (in Mitsuba 3.9.1 a retarder's ``theta`` turns its axis from the
-rectangle's local U towards V, a polariser's from U towards -V, whichever way
-the rectangle faces). The test therefore also renders the stack with rotated
-rectangles (``theta=0``), which needs no sign convention for the axes at all.
-What the comparison does pin down: the sign of the axes relative to the
-polarisers, the sign of the slab retardance relative to the QWPs, and the slab
-order, each of which is shown to change some channel by far more than the
+intensity unchanged: mirroring all angles at once (t -> -t for every element,
+the slabs' axes included, which are fixed by the world-frame stress and so do
+not follow a mirrored polariscope) and conjugating all retarders at once
+(delta -> -delta for every retarder: the choice of time convention, which no
+intensity can see). What the comparison pins down is therefore physical and
+relative: the slabs' slow axis is their larger principal stress when the QWPs'
+angle is their fast axis (the model before issue 18 had it the other way:
+``sigma1_fast`` below), angles turn the same way as the rectangles' rotation
+about the direction of propagation, and the slabs act in the order light meets
+them. Each of these is shown to change some channel by far more than the
 tolerance.
+
+Mitsuba's ``theta`` parameters can replace the rotations (the ``mapped`` set),
+with one sign that is Mitsuba's own: in Mitsuba 3.9.1 a retarder's ``theta`` turns
+its axis like a rotation of its rectangle, a polariser's ``theta`` the other way
+(from U towards -V, whichever way the rectangle faces). The ``mapped`` set
+therefore uses ``polarizer theta=-alpha`` and ``retarder theta=+t``.
 """
 from __future__ import annotations
 
@@ -82,7 +90,7 @@ class Slab:
     xy: float = 0.0
 
     def retarder(self):
-        """(Delta, theta) in radians for light along z: PHYSICS.md section 2 with u = x, v = y."""
+        """(Delta, theta) in radians for light along z: docs/physics.md section 2 with u = x, v = y."""
         diff, shear2 = self.xx - self.yy, 2.0 * self.xy
         delta = (2.0 * math.pi * STRESS_OPTIC_COEFFICIENT * self.thickness
                  * math.hypot(diff, shear2) / WAVELENGTH)
@@ -113,7 +121,7 @@ class Scope:
 # the polariser angle sign matters too (alpha_1 = 90 in all 16 measurements).
 MAIN_SCOPE = Scope(polarizer=20.0, input_qwp=65.0, output_qwp=10.0, analyzer=115.0)
 
-# PHYSICS.md section 6: alpha_1 = 90, beta_1 x beta_2 x alpha_2.
+# docs/physics.md section 6: alpha_1 = 90, beta_1 x beta_2 x alpha_2.
 MEASUREMENTS = {
     f"pol.{b1}.{b2}.{a2}": Scope(90.0, float(b1), float(b2), float(a2))
     for b1 in (45, 90) for b2 in (0, 45) for a2 in (0, 45, 90, 135)
@@ -169,7 +177,7 @@ def mi_nest_scene():
     return mi.load_dict(scene)
 
 
-# --- Jones calculus of PHYSICS.md, written from scratch ---------------------
+# --- Jones calculus of docs/physics.md, written from scratch ---------------------
 
 def _rotation(t):
     return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
@@ -181,8 +189,9 @@ def _transmission(alpha_deg):
 
 
 def _qwp(beta_deg):
+    """Fast axis at beta under exp(+i omega t): the slow component lags a quarter period."""
     t = np.deg2rad(beta_deg)
-    return _rotation(t) @ np.diag([1.0, 1.0j]) @ _rotation(-t)
+    return _rotation(t) @ np.diag([1.0, -1.0j]) @ _rotation(-t)
 
 
 def _slab_jones(slab):
@@ -208,26 +217,26 @@ def jones_intensity(scope):
 # --- Mitsuba's polarised variant -------------------------------------------
 
 def mitsuba_stack(scope, retarders, geometric=False):
-    """Mitsuba elements for ``scope`` around slab retarders ``[(Delta_deg, theta_deg)]``.
+    """Mitsuba elements for ``scope`` around slab retarders ``[(Delta_deg, fast_axis_deg)]``.
 
-    ``geometric=False``: the parameter mapping of the module docstring.
     ``geometric=True``: every axis set by rotating the element's rectangle
     (``theta=0``), so no angle sign convention of Mitsuba enters.
+    ``geometric=False``: Mitsuba's ``theta`` parameters (module docstring).
     """
     def polarizer(alpha):
         if geometric:
             return {"type": "polarizer", "theta": 0.0, "rotate": alpha}
-        return {"type": "polarizer", "theta": alpha}
+        return {"type": "polarizer", "theta": -alpha}
 
-    def retarder(delta, theta):
+    def retarder(delta, fast_axis):
         if geometric:
-            return {"type": "retarder", "delta": -delta, "theta": 0.0, "rotate": theta}
-        return {"type": "retarder", "delta": -delta, "theta": -theta}
+            return {"type": "retarder", "delta": delta, "theta": 0.0, "rotate": fast_axis}
+        return {"type": "retarder", "delta": delta, "theta": fast_axis}
 
     stack = [polarizer(scope.polarizer)]
     if scope.input_qwp is not None:
         stack.append(retarder(90.0, scope.input_qwp))
-    stack += [retarder(delta, theta) for delta, theta in retarders]
+    stack += [retarder(delta, fast_axis) for delta, fast_axis in retarders]
     if scope.output_qwp is not None:
         stack.append(retarder(90.0, scope.output_qwp))
     if scope.analyzer is not None:
@@ -236,8 +245,8 @@ def mitsuba_stack(scope, retarders, geometric=False):
 
 
 def slab_retarders():
-    """The slabs as (Delta, theta) in degrees, in light order."""
-    return [tuple(math.degrees(x) for x in slab.retarder()) for slab in SLABS]
+    """The slabs as (Delta, fast axis) in degrees, in light order: the fast axis is 90 degrees from sigma_1."""
+    return [(math.degrees(delta), math.degrees(theta) + 90.0) for delta, theta in (s.retarder() for s in SLABS)]
 
 
 # Deliberately wrong references: each breaks one thing the comparison must see.
@@ -245,8 +254,9 @@ def slab_retarders():
 # product and only flips its rotator part: the slabs are chosen so that it is
 # large, see SLABS.)
 WRONG_SLABS = {
-    "axis_sign": [(delta, -theta) for delta, theta in slab_retarders()],
-    "retardance_sign": [(-delta, theta) for delta, theta in slab_retarders()],
+    # the larger principal stress as the fast axis: the handedness error of the model before issue 18
+    "sigma1_fast": [(delta, fast_axis - 90.0) for delta, fast_axis in slab_retarders()],
+    "axis_sign": [(delta, -fast_axis) for delta, fast_axis in slab_retarders()],
     "slab_order": slab_retarders()[::-1],
 }
 
@@ -299,7 +309,7 @@ def test_slab_design_is_generic():
 
 
 def test_reference_reproduces_jones_calculus(reference):
-    """The Mitsuba stacks (both mappings) render the PHYSICS.md intensities."""
+    """The Mitsuba stacks (both mappings) render the docs/physics.md intensities."""
     for name, scope in CONFIGURATIONS.items():
         expected = jones_intensity(scope)
         for mapping in ("mapped", "geometric"):

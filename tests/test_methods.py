@@ -1,4 +1,4 @@
-"""Models of the ordered exponential (PHYSICS.md section 4): orders, exactness, unitarity, failure."""
+"""Models of the ordered exponential (docs/physics.md section 4): orders, exactness, unitarity, failure."""
 import math
 
 import numpy as np

@@ -52,7 +52,7 @@ def test_oblique_rays_project_onto_their_own_transverse_plane():
 
 
 def twisted_closed_form(amplitude, rate_deg, angle_deg, length, C=BREWSTER):
-    """PHYSICS.md section 5: J = R(theta_0 + psi) M R(-theta_0)."""
+    """docs/physics.md section 5: J = R(theta_0 + psi) M R(-theta_0)."""
     G = 2 * math.pi * C * amplitude * length / WAVELENGTH
     psi = math.radians(rate_deg) * length
     X = math.hypot(psi, G / 2)
@@ -180,7 +180,7 @@ def test_stratified_jitter_converges_to_the_midpoint_answer():
 
 
 def test_perspective_rays_use_their_own_transverse_basis():
-    """Each perspective ray sees the stress projected on its own (u, v): PHYSICS.md section 1."""
+    """Each perspective ray sees the stress projected on its own (u, v): docs/physics.md section 1."""
     S = np.array([[1.5, 0.6, 0.9], [0.6, -0.8, -0.7], [0.9, -0.7, 0.3]])
     thickness, res = 3.0, 5
     origin = np.array([0.0, 0.0, 30.0])

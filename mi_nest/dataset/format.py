@@ -16,7 +16,11 @@ from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
 
 FORMAT = "mi_nest.dataset"
-VERSION = 1
+# Version 2: simulated with the physical handedness of docs/physics.md (QWP angles are fast axes).
+VERSION = 2
+# Version 1 simulations used a QWP of the opposite handedness to the stress: their circular-input
+# measurements show every stress with its sign flipped. Captures hold physical intensities either way.
+OLD_HANDEDNESS_VERSION = 1
 INDEX = "dataset.json"
 CHANNELS = tuple(MEASUREMENTS)
 MASK_CHANNELS = ("mask.dolp", "mask.occupancy")
@@ -59,8 +63,14 @@ def read_index(directory) -> dict:
         raise DatasetError(f"{path}: corrupt ({error})") from error
     if not isinstance(index, dict) or index.get("format") != FORMAT:
         raise DatasetError(f"{path}: not an mi_nest dataset index (format is not '{FORMAT}')")
-    if index.get("version") != VERSION:
-        raise DatasetError(f"{path}: format version {index.get('version')}, this mi_nest reads {VERSION}")
+    version = index.get("version")
+    simulated = isinstance(index.get("source"), dict) and index["source"].get("kind") == "simulated"
+    if version == OLD_HANDEDNESS_VERSION and simulated:
+        raise DatasetError(f"{path}: simulated before mi_nest fixed its QWP handedness (format version 1): its "
+                           "circular-polariscope measurements show the stress with its sign flipped; simulate it "
+                           "again into a new directory (mi-nest simulate SCENE -o NEW_DIRECTORY)")
+    if version not in (OLD_HANDEDNESS_VERSION, VERSION):
+        raise DatasetError(f"{path}: format version {version}, this mi_nest reads {VERSION}")
     missing = [k for k in ("resolution", "rotations", "channels", "wavelength", "complete") if k not in index]
     if missing:
         raise DatasetError(f"{path}: corrupt: missing {missing}")

@@ -1,6 +1,6 @@
 """Which specimen rotations a dataset holds, and where the polariscope sits for each.
 
-The specimen is fixed in the world (PHYSICS.md section 1): rotating it by
+The specimen is fixed in the world (docs/physics.md section 1): rotating it by
 ``R = R_up(azimuth) R_right(elevation)`` about its centre is rendered as rotating
 the whole polariscope by ``R^-1``. ``up`` and ``right`` are the reference
 camera's image axes, so azimuth turns the specimen about the image's vertical and

@@ -70,7 +70,7 @@ class UniformField(StressField):
 
 @dataclass(frozen=True)
 class TwistedField(StressField):
-    """Uniaxial stress whose direction turns uniformly along ``axis`` (PHYSICS.md section 5).
+    """Uniaxial stress whose direction turns uniformly along ``axis`` (docs/physics.md section 5).
 
     ``S(p) = amplitude * n n^T`` with ``n = cos(phi) e1 + sin(phi) e2`` and
     ``phi = angle + rate * ((p - origin) . axis)``; ``e1`` is ``reference`` made

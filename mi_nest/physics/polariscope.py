@@ -1,8 +1,11 @@
-"""Polariscope optics and the 16 multi-axis measurements (PHYSICS.md sections 1 and 6).
+"""Polariscope optics and the 16 multi-axis measurements (docs/physics.md sections 1 and 6).
 
 Light source -> linear polariser (alpha_1) -> optional QWP (beta_1) -> specimen J
 -> optional QWP (beta_2) -> optional analyser (alpha_2). Angles are degrees in
-the transverse (u, v) plane, from u towards v.
+the transverse (u, v) plane, from u (image right) towards v (image up):
+counter-clockwise for an observer looking toward the source. Fields vary as
+``exp(+i omega t)``, so a phase lag is a negative phase and a waveplate's fast
+axis is the one whose component keeps its phase.
 
 For a unit source the detected intensity is ``sum_rows |w^T J e|^2``. Writing J
 in its quaternion coordinates ``q = (a, b, c, d)`` makes every amplitude
@@ -41,12 +44,15 @@ def linear_polarizer(alpha_deg):
 
 
 def waveplate(beta_deg, retardance_deg=90.0):
-    """Linear retarder with fast axis at ``beta``: ``R(beta) diag(1, exp(i delta)) R(-beta)``."""
-    return rotation(beta_deg) @ np.diag([1, np.exp(1j * np.deg2rad(retardance_deg))]) @ rotation(-beta_deg)
+    """Linear retarder with fast axis at ``beta``: ``R(beta) diag(1, exp(-i delta)) R(-beta)``.
+
+    The slow component lags by ``delta``, a negative phase under ``exp(+i omega t)``.
+    """
+    return rotation(beta_deg) @ np.diag([1, np.exp(-1j * np.deg2rad(retardance_deg))]) @ rotation(-beta_deg)
 
 
 def quarter_wave_plate(beta_deg):
-    """QWP with fast axis at ``beta``: ``R(beta) diag(1, i) R(-beta)``."""
+    """QWP with fast axis at ``beta``: ``R(beta) diag(1, -i) R(-beta)``."""
     return waveplate(beta_deg, 90.0)
 
 
@@ -121,5 +127,5 @@ MEASUREMENTS = {
 
 
 def measurement_intensities(q):
-    """The 16 intensities ``{"pol.<b1>.<b2>.<a2>": I}`` of PHYSICS.md section 6."""
+    """The 16 intensities ``{"pol.<b1>.<b2>.<a2>": I}`` of docs/physics.md section 6."""
     return {name: scope.intensity(q) for name, scope in MEASUREMENTS.items()}

@@ -1,4 +1,4 @@
-"""Projection of the 3D stress tensor onto a ray's transverse plane (PHYSICS.md 1-2).
+"""Projection of the 3D stress tensor onto a ray's transverse plane (docs/physics.md 1-2).
 
 Stress tensors travel as 6-tuples in 3D-TSV order ``(xx, yy, zz, yz, zx, xy)``;
 vectors as 3-sequences of components (a Dr.Jit ``Vector3f`` or a tuple of arrays).

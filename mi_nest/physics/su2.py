@@ -1,4 +1,4 @@
-"""Jones matrices of lossless media as unit quaternions (PHYSICS.md section 3).
+"""Jones matrices of lossless media as unit quaternions (docs/physics.md section 3).
 
 A quaternion is the tuple ``(a, b, c, d)`` of real arrays standing for the SU(2)
 matrix ``J = a I + i (b sigma_x + c sigma_z) + d (i sigma_y)``::
@@ -84,7 +84,10 @@ def step(p, q, phase):
     Solves ``dE/ds = -i k [[p, q], [q, -p]] E`` over one step where ``phase = k h``
     (``k = pi C / lambda``, ``h`` the step length), ``p = s_uu - s_vv`` and
     ``q = 2 s_uv``. The result is a retarder of retardance
-    ``Delta = 2 phase sqrt(p^2 + q^2)`` with axis ``0.5 atan2(q, p)``.
+    ``Delta = 2 phase sqrt(p^2 + q^2)`` whose slow axis is ``0.5 atan2(q, p)``,
+    the direction of the larger principal stress: under ``exp(+i omega t)`` the
+    component along it gets the phase ``-Delta / 2``, the lag that a positive
+    stress-optic coefficient gives it (docs/physics.md section 2).
     """
     return exponential(generator(p, q, phase))
 
@@ -148,7 +151,7 @@ def _cos_sinc_trigonometric(x2, xp):
 
 
 def retarder(delta, theta):
-    """Linear retarder of retardance ``delta`` with slow/fast axis at ``theta`` (radians)."""
+    """Linear retarder of retardance ``delta`` with its slow axis at ``theta`` (radians)."""
     xp = ops(delta, theta)
     s, c = xp.sincos(0.5 * delta)
     s2, c2 = xp.sincos(2.0 * theta)
@@ -156,7 +159,7 @@ def retarder(delta, theta):
 
 
 def rotator(gamma):
-    """Rotator by ``gamma`` (radians): the rotation R(gamma) of PHYSICS.md section 1."""
+    """Rotator by ``gamma`` (radians): the rotation R(gamma) of docs/physics.md section 1."""
     xp = ops(gamma)
     s, c = xp.sincos(gamma)
     zero = gamma * 0.0

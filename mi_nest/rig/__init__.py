@@ -1,4 +1,4 @@
-"""Control of the multi-axis polariscope rig (PHYSICS.md section 7) and its simulated twin.
+"""Control of the multi-axis polariscope rig (docs/physics.md section 7) and its simulated twin.
 
 Importing this package registers the simulated instruments with pyserial
 (``ell14sim://``, ``aptsim://``), so a driver opens a simulated device and a
