@@ -1,0 +1,72 @@
+"""Ctrl-C between units of work, never inside a Dr.Jit kernel or loop.
+
+Python raises ``KeyboardInterrupt`` wherever the interpreter happens to be. Inside
+Dr.Jit's tracing of a symbolic loop that leaves Dr.Jit mid-recording and the
+exception comes out as a ``RuntimeError`` (no checkpoint, a traceback). Work that
+loops over units (render passes, rotations, iterations, frames) runs inside
+:func:`deferred` and calls :func:`check` between units: the first SIGINT is only
+noted and raised there; a second one raises at once, for the impatient.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+
+_received = 0       # SIGINTs since our handler was installed
+_deferring = 0      # nesting depth of deferred() blocks
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C ended a run at a clean point; the message says what was kept and how to go on."""
+
+
+def _on_sigint(signum, frame):
+    global _received
+    _received += 1
+    if _deferring and _received == 1:
+        return
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def handling():
+    """Install the SIGINT handler for the block (restoring the previous one after), unless it is installed.
+
+    Outside :func:`deferred` it raises ``KeyboardInterrupt`` as Python's does, and
+    :func:`received` says afterwards that an error came from an interruption.
+    """
+    global _received
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is _on_sigint:
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, _on_sigint)
+    _received = 0
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def deferred():
+    """Inside the block the first Ctrl-C waits for the next :func:`check` (or the end of the block)."""
+    global _deferring
+    with handling():
+        _deferring += 1
+        try:
+            yield
+        finally:
+            _deferring -= 1
+        check()     # a Ctrl-C after the block's last check; not reached when the block raised
+
+
+def check():
+    """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed: call it between units of work."""
+    if _received:
+        raise KeyboardInterrupt
+
+
+def received():
+    """Whether Ctrl-C was pressed since the handler was installed."""
+    return _received > 0
