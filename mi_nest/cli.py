@@ -56,8 +56,8 @@ def _parser():
                       help=f"reconstruction iterations (default: {DEMO_ITERATIONS})")
 
     export = commands.add_parser("export", help="write a stress field as VTK (.vtu) for ParaView")
-    export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .stress), or a scene "
-                                      "(XML file or shipped name) whose specimens are sampled on grids")
+    export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti), "
+                                      "or a scene (XML file or shipped name) whose specimens are sampled on grids")
     export.add_argument("-o", "--output", required=True, help="output .vtu path")
     export.add_argument("-D", dest="defines", action="append", type=_definition, default=[],
                         metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
@@ -68,9 +68,10 @@ def _parser():
         "fem", help="solve a linear-elastic FEM model and write its nodal stress (.npz)",
         description="Either --spec FILE (TOML/JSON: geometry, material, loads, fixtures), or a MESH "
                     "(a volume mesh meshio reads, or a closed surface meshed with the gmsh extra) with "
-                    "--fix/--load/--pressure. WHERE is x=<v>, y=<v>, z=<v> (a plane) or a surface group "
-                    "name of the mesh file.")
-    fem.add_argument("mesh", nargs="?", help="volume mesh or closed surface file")
+                    "--fix/--load/--pressure. A 3D-TSV stress file as MESH (.TSV, .stress, .TSVcarti, .carti) "
+                    "brings its own fixed nodes and node forces; flags add to them. WHERE is x=<v>, y=<v>, "
+                    "z=<v> (a plane) or a surface group name of the mesh file.")
+    fem.add_argument("mesh", nargs="?", help="volume mesh, closed surface or 3D-TSV stress file")
     fem.add_argument("--spec", help="model file (.toml or .json)")
     fem.add_argument("--fix", action="append", default=[], metavar="WHERE[:xyz]",
                      help="clamp the faces in WHERE (optionally only some components); repeatable")
@@ -112,10 +113,13 @@ def _parser():
     simulate.add_argument("-D", dest="defines", action="append", default=[], type=_definition, metavar="NAME=VALUE",
                           help="set a scene $parameter")
 
-    show = commands.add_parser("show", help="contact sheet PNG of a dataset")
-    show.add_argument("dataset", help="dataset directory")
+    show = commands.add_parser("show", help="contact sheet PNG of a dataset, or a preview PNG of a mesh stress "
+                                            "file with its boundary conditions")
+    show.add_argument("dataset", help="dataset directory, or a mesh stress file (3D-TSV .TSV/.stress/.TSVcarti/"
+                                      ".carti, mesh .npz)")
     show.add_argument("-c", "--channel", default="pol.45.0.0", help="channel to tile (default: pol.45.0.0)")
-    show.add_argument("-o", "--output", help="PNG path (default: DATASET/contact_sheet.png)")
+    show.add_argument("-o", "--output", help="PNG path (default: DATASET/contact_sheet.png; for a file, "
+                                             "<name>_preview.png in the current directory)")
 
     reconstruct = commands.add_parser("reconstruct", help="reconstruct the stress field from a dataset (NeST)")
     reconstruct.add_argument("dataset", help="dataset directory (from mi-nest simulate or acquire)")
@@ -241,8 +245,8 @@ def _truth_beside_reconstruction(reconstruction, defines, out):
 
 
 def _export(field, output, defines, resolution):
-    from .fields.sources import SUFFIXES, export_vtu
-    if Path(field).suffix in SUFFIXES:
+    from .fields.sources import export_vtu, is_stress_file
+    if is_stress_file(field):
         summary = export_vtu(field, output, resolution)
         print(f"wrote {Path(output).resolve()} ({summary})")
         return
@@ -299,6 +303,9 @@ def _simulate(args):
 
 
 def _show(args):
+    if Path(args.dataset).is_file():
+        _show_mesh(Path(args.dataset), args.output)
+        return
     from .dataset import Dataset
     from .dataset.sheet import write_contact_sheet
     dataset = Dataset(args.dataset, allow_incomplete=True)
@@ -307,6 +314,25 @@ def _show(args):
     output = Path(args.output or Path(args.dataset) / "contact_sheet.png")
     write_contact_sheet(output, dataset, args.channel)
     print(f"{dataset}")
+    print(f"wrote {output.resolve()}")
+
+
+def _show_mesh(path, output):
+    """Preview PNG of a mesh stress file: surface by von Mises stress, node forces as arrows, fixed nodes."""
+    from .fields.sources import SUPPORTED, is_mesh_file, is_stress_file, load_mesh
+    from .io.preview import write_mesh_preview
+    if not is_stress_file(path):
+        raise ValueError(f"{path}: mi-nest show takes a dataset directory or a mesh stress file ({SUPPORTED})")
+    if not is_mesh_file(path):
+        raise ValueError(f"{path} is a stress grid; mi-nest show previews mesh stress files (export the grid "
+                         "with mi-nest export to view it in ParaView)")
+    mesh = load_mesh(path)
+    output = Path(output or f"{path.stem}_preview.png")
+    summary = f"{len(mesh.nodes)} nodes, {len(mesh.tets)} tetrahedra"
+    conditions = mesh.boundary.describe() if mesh.boundary is not None else "no boundary conditions in the file"
+    write_mesh_preview(output, mesh.nodes, mesh.surface, mesh.stress, mesh.boundary,
+                       f"{path.name}: {summary}\n{conditions}")
+    print(f"{path.name}: {summary}; {conditions}")
     print(f"wrote {output.resolve()}")
 
 

@@ -22,7 +22,8 @@ class Specimen(mi.Mesh):
 
      * - filename
        - |string|
-       - A 3D-TSV ``.stress`` file (tetrahedra or hexahedra) or a mesh ``.npz``
+       - A 3D-TSV ``.TSV``/``.stress`` file (tetrahedra or hexahedra), a
+         ``.TSVcarti``/``.carti`` grid, or a mesh ``.npz``
          from ``mi-nest fem`` (``nodes``, ``cells``, nodal ``stress``). Lengths mm,
          stress MPa.
 

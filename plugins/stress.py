@@ -36,7 +36,7 @@ class StressMedium(mi.Medium):
        - Stress file: a grid ``.npz`` (``stress`` (Z, Y, X, 6) in MPa, 3D-TSV
          order xx, yy, zz, yz, zx, xy, ``bbox_min``/``bbox_max`` in mm), a mesh
          ``.npz`` (``nodes``, ``cells``, nodal ``stress``: FEM results) or a 3D-TSV
-         ``.stress`` file. Meshes are resampled onto a grid; lookups are
+         file (``.TSV``, ``.TSVcarti``, early ``.stress``, ``.carti``). Meshes are resampled onto a grid; lookups are
          trilinear and differentiable through ``mi.traverse`` as ``stress``.
 
      * - grid_resolution

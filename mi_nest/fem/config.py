@@ -76,6 +76,19 @@ def vector(name, value, length=3):
     return values
 
 
+def vectors(name, value):
+    """``value`` as a (K >= 1, 3) array of finite floats (raises FemError otherwise)."""
+    try:
+        values = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise FemError(f"'{name}' must be a list of [x, y, z] triples, got {value!r}") from None
+    if values.ndim != 2 or values.shape[1] != 3 or len(values) == 0:
+        raise FemError(f"'{name}' must be a non-empty list of [x, y, z] triples, got shape {values.shape}")
+    if not np.all(np.isfinite(values)):
+        raise FemError(f"'{name}' must be finite (row {int(np.argmin(np.isfinite(values).all(axis=1)))} is not)")
+    return values
+
+
 def number(name, value, *, positive=False, nonnegative=False):
     """``value`` as a finite float with an optional sign requirement."""
     if isinstance(value, bool):

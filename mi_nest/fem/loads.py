@@ -7,13 +7,16 @@ Units: mm, N, MPa. Loads:
 * :class:`SurfaceForce` -- a total force (N) spread uniformly (per area) over the
   boundary facets in a region;
 * :class:`Traction` -- a traction vector (MPa = N/mm^2) on the facets in a region;
-* :class:`Pressure` -- a normal pressure (MPa), positive pushing into the body.
+* :class:`Pressure` -- a normal pressure (MPa), positive pushing into the body;
+* :class:`NodeForces` -- a force (N) at each of a set of mesh nodes (the node
+  forces of a 3D-TSV file).
 
 Displacements live on a scalar Lagrange basis (P1 or P2) with three vector dofs
 per scalar dof ``d``: ``3 d + 0, 1, 2`` for x, y, z.
 
 A :class:`Fixture` prescribes displacement components (zero by default) on the
-boundary facets in a region, or at the boundary node nearest a point: all three
+boundary facets in a region, at the boundary node nearest a point, or at the
+mesh nodes of a :class:`~mi_nest.fem.regions.Nodes` region: all three
 components clamp, one or two make roller / symmetry supports.
 
 Fixtures must remove all six rigid-body motions; :func:`check_rigid_modes`
@@ -26,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import FemError, format_point, number, parse_fields, parse_typed, vector
-from .regions import NearestNode, boundary_facets_in, nearest_boundary_node, parse_region
+from .config import FemError, format_point, number, parse_fields, parse_typed, vector, vectors
+from .regions import NearestNode, Nodes, boundary_facets_in, nearest_boundary_node, nodes_at, parse_region
 
 _COMPONENTS = {"x": 0, "y": 1, "z": 2}
 
@@ -92,6 +95,23 @@ class Pressure:
         object.__setattr__(self, "pressure", number("pressure", self.pressure))
 
 
+@dataclass(frozen=True, eq=False)
+class NodeForces:
+    """``forces[k]`` (N) at the mesh node at ``where.points[k]`` (``where`` is a ``nodes`` region)."""
+    name: str
+    where: object
+    forces: object
+
+    def __post_init__(self):
+        object.__setattr__(self, "name", _name(self.name))
+        object.__setattr__(self, "where", parse_region(self.where, "region"))
+        if not isinstance(self.where, Nodes):
+            raise FemError(f"node forces act on a 'nodes' region, got {self.where.describe()}")
+        object.__setattr__(self, "forces", vectors("forces", self.forces))
+        if len(self.forces) != len(self.where.points):
+            raise FemError(f"{len(self.forces)} forces for {len(self.where.points)} nodes: give one per node")
+
+
 @dataclass(frozen=True)
 class Fixture:
     """Prescribed ``displacement`` (mm) of ``components`` on the boundary facets in ``where``.
@@ -116,7 +136,8 @@ class Fixture:
         object.__setattr__(self, "displacement", vector("displacement", self.displacement))
 
 
-LOADS = {"point_force": PointForce, "force": SurfaceForce, "traction": Traction, "pressure": Pressure}
+LOADS = {"point_force": PointForce, "force": SurfaceForce, "traction": Traction, "pressure": Pressure,
+         "node_forces": NodeForces}
 
 
 def parse_load(data, index=0):
@@ -145,8 +166,9 @@ def _unique_names(items, kind):
 # --------------------------------------------------------------------------- assembly
 
 def _selected_facets(mesh, region, what):
-    if isinstance(region, NearestNode):
-        raise FemError(f"{what} acts on a surface but its region is a single node ({region.describe()}); "
+    if isinstance(region, (NearestNode, Nodes)):
+        picked = "a single node" if isinstance(region, NearestNode) else "a set of nodes"
+        raise FemError(f"{what} acts on a surface but its region is {picked} ({region.describe()}); "
                        f"use a plane, box, sphere or cylindrical_surface region, or a point_force")
     facets = boundary_facets_in(mesh, region)
     if len(facets) == 0:
@@ -172,6 +194,8 @@ def load_vector(basis, loads):
             nodes = _point_nodes(mesh, load, what)
             # A point force at a vertex is its vertex-dof entry: exact for P1 and P2 alike.
             np.add.at(part, basis.nodal_dofs[0, nodes], np.asarray(load.force) / len(nodes))
+        elif isinstance(load, NodeForces):
+            np.add.at(part, basis.nodal_dofs[0, nodes_at(mesh, load.where, what)], load.forces)
         else:
             facets = _selected_facets(mesh, load.where, what)
             facet_basis = FacetBasis(mesh, basis.elem, facets=facets)
@@ -241,6 +265,8 @@ def constraints(basis, fixtures):
         if isinstance(fixture.where, NearestNode):
             node = _nearest(mesh, fixture.where, what)
             scalar_dofs = basis.nodal_dofs[0, [node]]
+        elif isinstance(fixture.where, Nodes):
+            scalar_dofs = basis.nodal_dofs[0, nodes_at(mesh, fixture.where, what)]
         else:
             scalar_dofs = basis.get_dofs(facets=_selected_facets(mesh, fixture.where, what)).all()
         picked = []

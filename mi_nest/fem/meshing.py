@@ -15,7 +15,8 @@ bottom node to the higher-numbered top node, a rule both prisms sharing the side
 apply identically, so the tetrahedra are conforming without any search.
 
 :class:`MeshFileGeometry` reads volume meshes (gmsh ``.msh``, ``.vtu``,
-``.vtk``, ... through meshio, MIT) and, when the optional ``gmsh`` extra is
+``.vtk``, ... through meshio, MIT; the meshes of 3D-TSV stress files, hexahedra
+cut into six tetrahedra) and, when the optional ``gmsh`` extra is
 installed (``pip install mi_nest[gmsh]``; gmsh is GPL, so it is never a hard
 dependency), tetrahedralises closed surfaces (``.stl``, ``.ply``, ``.obj``).
 """
@@ -265,9 +266,13 @@ class MeshFileGeometry:
             object.__setattr__(self, "element_size", number("element_size", self.element_size, positive=True))
 
     def mesh(self):
+        from ..fields.sources import is_tsv_file, load_mesh
         path = Path(self.base) / Path(self.path)
         if not path.is_file():
             raise FemError(f"mesh file not found: {path}")
+        if is_tsv_file(path):
+            tsv = load_mesh(path)
+            return _to_skfem(tsv.nodes, tsv.tets)
         if path.suffix.lower() in SURFACE_SUFFIXES:
             return mesh_surface(path, self.element_size)
         return read_volume_mesh(path)

@@ -4,7 +4,8 @@ A region answers ``contains(points)`` for an (N, 3) array (mm) and describes
 itself for error messages. A boundary facet belongs to a region when all its
 corners do, so a plane picks a flat face and not the facets that merely touch
 it along an edge. :class:`NearestNode` instead picks the single boundary node
-closest to a point (point supports, the 3-2-1 rule).
+closest to a point (point supports, the 3-2-1 rule), :class:`Nodes` the mesh
+nodes at given points (the fixed and loaded nodes of a 3D-TSV file).
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from .config import FemError, format_point, number, parse_typed, vector
+from .config import FemError, format_point, number, parse_typed, vector, vectors
 
 _AXES = "xyz"
 
@@ -135,6 +136,20 @@ class NearestNode:
         return f"boundary node nearest {format_point(self.point)}"
 
 
+@dataclass(frozen=True, eq=False)
+class Nodes:
+    """The mesh nodes (boundary or interior) at ``points`` (K, 3) mm, each within ``tolerance`` mm."""
+    points: object
+    tolerance: float = 1e-6
+
+    def __post_init__(self):
+        object.__setattr__(self, "points", vectors("points", self.points))
+        object.__setattr__(self, "tolerance", number("tolerance", self.tolerance, positive=True))
+
+    def describe(self):
+        return f"{len(self.points)} mesh nodes at given points"
+
+
 @dataclass(frozen=True)
 class Predicate:
     """Points where ``function(points) -> bool array`` holds (Python only, not in spec files)."""
@@ -165,12 +180,12 @@ class Group:
 
 
 REGIONS = {"plane": Plane, "box": Box, "sphere": Sphere, "cylindrical_surface": CylindricalSurface,
-           "point": NearestNode, "group": Group}
+           "point": NearestNode, "nodes": Nodes, "group": Group}
 
 
 def parse_region(data, where):
     """A region from its dict form, e.g. ``{"type": "plane", "point": [0, 0, 10], "normal": [0, 0, 1]}``."""
-    if isinstance(data, (Plane, Box, Sphere, CylindricalSurface, NearestNode, Predicate, Group)):
+    if isinstance(data, (Plane, Box, Sphere, CylindricalSurface, NearestNode, Nodes, Predicate, Group)):
         return data
     return parse_typed(REGIONS, data, where)
 
@@ -195,3 +210,15 @@ def nearest_boundary_node(mesh, point):
     distance = np.linalg.norm(mesh.p[:, nodes].T - np.asarray(point), axis=1)
     best = int(np.argmin(distance))
     return int(nodes[best]), float(distance[best])
+
+
+def nodes_at(mesh, region, what):
+    """Indices of the nodes of ``mesh`` at the points of a :class:`Nodes` region."""
+    from scipy.spatial import cKDTree
+    distance, index = cKDTree(mesh.p.T).query(region.points)
+    far = distance > region.tolerance
+    if np.any(far):
+        first = int(np.argmax(far))
+        raise FemError(f"{what}: no mesh node at {format_point(region.points[first])} (the nearest is "
+                       f"{distance[first]:.3g} mm away; tolerance {region.tolerance:g} mm)")
+    return index

@@ -29,8 +29,14 @@ Example (TOML; lengths mm, forces N, stresses MPa)::
 
 Regions (``where``): ``plane`` (point, normal, tolerance), ``box`` (min, max),
 ``sphere`` (center, radius), ``cylindrical_surface`` (radius, center, axis,
-tolerance), ``point`` (the nearest boundary node), ``group`` (name: a named
-surface of a mesh file, e.g. a gmsh physical surface).
+tolerance), ``point`` (the nearest boundary node), ``nodes`` (points: the mesh
+nodes there, within tolerance), ``group`` (name: a named surface of a mesh
+file, e.g. a gmsh physical surface). Loads of type ``node_forces`` give one
+force per node of a ``nodes`` region (``forces = [[fx, fy, fz], ...]``).
+
+A 3D-TSV file as the mesh of :func:`spec_from_flags` (``mi-nest fem part.TSV``)
+brings its own boundary conditions: its fixed nodes clamped, its node forces
+applied (:func:`file_boundary_conditions`), besides any flags.
 """
 from __future__ import annotations
 
@@ -39,6 +45,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..fields.sources import is_tsv_file, load_mesh
 from .config import FemError, parse_fields
 from .loads import parse_fixture, parse_load
 from .meshing import MeshFileGeometry, parse_geometry
@@ -161,16 +168,33 @@ def spec_from_flags(mesh, fixes, loads=(), pressures=(), material=(3000.0, 0.37)
             raise FemError(f"{what}: expected {count} comma-separated numbers, got '{text}'")
         return values
 
-    fixtures = []
+    fixtures, applied = file_boundary_conditions(mesh) if is_tsv_file(mesh) else ([], [])
     for index, text in enumerate(fixes):
         where, components = (split(text, "--fix") if ":" in text else (parse_where(text), "xyz"))
         if not components or set(components) - set("xyz"):
             raise FemError(f"--fix '{text}': components must be letters among x, y, z")
         fixtures.append(Fixture(f"fix {index + 1} ({text})", where, tuple(sorted(set(components)))))
-    applied = [SurfaceForce(f"load {i + 1} ({t})", split(t, "--load")[0], numbers(split(t, "--load")[1], 3, t))
-               for i, t in enumerate(loads)]
+    applied += [SurfaceForce(f"load {i + 1} ({t})", split(t, "--load")[0], numbers(split(t, "--load")[1], 3, t))
+                for i, t in enumerate(loads)]
     applied += [Pressure(f"pressure {i + 1} ({t})", split(t, "--pressure")[0],
                          numbers(split(t, "--pressure")[1], 1, t)[0]) for i, t in enumerate(pressures)]
     youngs_modulus, poisson_ratio = material
     return FemSpec(MeshFileGeometry(str(mesh), element_size), Material(youngs_modulus, poisson_ratio),
                    tuple(fixtures), tuple(applied), element_order)
+
+
+def file_boundary_conditions(path):
+    """``(fixtures, loads)`` of a 3D-TSV file's own boundary conditions, as lists (empty when it has none).
+
+    Nodes are found by their coordinates, so they survive the renumbering of
+    the solver's mesh.
+    """
+    from .loads import Fixture, NodeForces
+    from .regions import Nodes
+    mesh, name = load_mesh(path), Path(path).name
+    conditions = mesh.boundary
+    fixtures = ([Fixture(f"fixed nodes of {name}", Nodes(mesh.nodes[conditions.fixed_nodes]))]
+                if len(conditions.fixed_nodes) else [])
+    loads = ([NodeForces(f"node forces of {name}", Nodes(mesh.nodes[conditions.force_nodes]), conditions.forces)]
+             if len(conditions.forces) else [])
+    return fixtures, loads

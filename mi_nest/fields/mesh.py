@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..io.grid import StressGrid, grid_nodes
+from ..io.tsv import BoundaryConditions
 from .base import FieldParameterError
 
 # A positively oriented hexahedron (VTK / 3D-TSV order: bottom quad 0-3, top quad
@@ -33,14 +34,17 @@ class TetMeshStress:
 
     ``surface`` holds the boundary as outward-oriented triangles over ``nodes``;
     for meshes made of other cells it is the boundary of those cells.
+    ``boundary`` holds the node forces and fixed nodes of the FEM run behind the
+    stress when the file carried them (3D-TSV files do), else None.
     """
     nodes: np.ndarray      # (N, 3) float64
     tets: np.ndarray       # (M, 4) int64, 0-based
     stress: np.ndarray     # (N, 6) float32
     surface: np.ndarray    # (F, 3) int64, outward
+    boundary: BoundaryConditions | None = None
 
     @classmethod
-    def from_cells(cls, nodes, cells, stress):
+    def from_cells(cls, nodes, cells, stress, boundary=None):
         """Build from tetrahedra (M, 4) or hexahedra (M, 8), validating everything."""
         nodes = np.asarray(nodes, dtype=np.float64)
         cells = np.asarray(cells, dtype=np.int64)
@@ -59,10 +63,14 @@ class TetMeshStress:
             if not np.all(np.isfinite(values)):
                 row = int(np.argwhere(~np.isfinite(values))[0][0])
                 raise MeshError(f"{name} holds NaN or inf (first at node {row})")
+        if boundary is not None:
+            try:
+                boundary.check_nodes(len(nodes))
+            except ValueError as error:
+                raise MeshError(f"boundary conditions: {error}") from None
         faces = _HEX_FACES if cells.shape[1] == 8 else _TET_FACES
-        tets = cells[:, _HEX_TO_TETS].reshape(-1, 4) if cells.shape[1] == 8 else cells
-        tets = _positively_oriented(nodes, tets)
-        return cls(nodes, tets, stress, _boundary(nodes, cells, faces))
+        tets = _positively_oriented(nodes, _as_tets(cells))
+        return cls(nodes, tets, stress, _boundary(nodes, cells, faces), boundary)
 
     @property
     def bbox(self):
@@ -145,10 +153,43 @@ def fill_from_nearest(values, known):
     return values[tuple(nearest)]
 
 
-def _positively_oriented(nodes, tets):
+def nodal_average(nodes, cells, cell_values):
+    """Values given per cell (M, C) averaged at the nodes, each cell weighted by its volume.
+
+    What element-wise FEM stress becomes on a mesh that interpolates nodal
+    values: a field that is uniform over the cells stays exactly uniform, and
+    per-cell samples of a linear field give it back exactly at nodes whose cells
+    sit symmetrically around them. Nodes of no cell get zeros (no cell uses them).
+    """
+    nodes = np.asarray(nodes, dtype=np.float64)
+    cells = np.asarray(cells, dtype=np.int64)
+    tets = _as_tets(cells)
+    volume = np.abs(_signed_volumes(nodes, tets)).reshape(len(cells), -1).sum(axis=1)
+    degenerate = volume <= 1e-12 * np.ptp(nodes, axis=0).max() ** 3
+    if np.any(degenerate):
+        raise MeshError(f"{int(np.sum(degenerate))} degenerate (zero-volume) cells, first cell "
+                        f"{int(np.argmax(degenerate))}: their stress cannot be weighted")
+    weighted = np.zeros((len(nodes), cell_values.shape[1]))
+    weight = np.zeros(len(nodes))
+    for corner in cells.T:
+        np.add.at(weighted, corner, volume[:, None] * cell_values)
+        np.add.at(weight, corner, volume)
+    return weighted / np.maximum(weight, np.finfo(float).tiny)[:, None]
+
+
+def _as_tets(cells):
+    return cells[:, _HEX_TO_TETS].reshape(-1, 4) if cells.shape[1] == 8 else cells
+
+
+def _signed_volumes(nodes, tets):
+    """Six times the signed volume of each tetrahedron."""
     corners = nodes[tets]
-    volume = np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                       corners[:, 3] - corners[:, 0])
+    return np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
+                     corners[:, 3] - corners[:, 0])
+
+
+def _positively_oriented(nodes, tets):
+    volume = _signed_volumes(nodes, tets)
     extent = np.ptp(nodes, axis=0).max()
     degenerate = np.abs(volume) <= 1e-12 * extent ** 3
     if np.any(degenerate):

@@ -14,13 +14,34 @@ from ..io.mesh import is_mesh_npz, load_mesh_arrays
 from ..io.tsv import read_stress_file
 from .mesh import TetMeshStress
 
-SUFFIXES = (".npz", ".stress", ".carti")
+# 3D-TSV names its files by extension, today's first; any case is accepted.
+TSV_MESH_SUFFIXES = (".tsv", ".stress")
+TSV_GRID_SUFFIXES = (".tsvcarti", ".carti")
+SUFFIXES = (".npz",) + TSV_MESH_SUFFIXES + TSV_GRID_SUFFIXES
+SUPPORTED = "grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti"
+
+
+def is_stress_file(path):
+    """Whether ``path`` names a stress file by its extension (any case)."""
+    return Path(path).suffix.lower() in SUFFIXES
+
+
+def is_tsv_file(path):
+    return Path(path).suffix.lower() in TSV_MESH_SUFFIXES + TSV_GRID_SUFFIXES
+
+
+def read_tsv_model(path):
+    """A 3D-TSV file of any kind as its unstructured model (grid files as hexahedra)."""
+    if Path(path).suffix.lower() in TSV_MESH_SUFFIXES:
+        return read_stress_file(path)
+    return read_carti_file(path).model()
+
 
 
 def is_mesh_file(path):
-    """Whether ``path`` holds stress on a mesh (3D-TSV ``.stress``, mesh ``.npz``) rather than a grid."""
+    """Whether ``path`` holds stress on a mesh (3D-TSV files, mesh ``.npz``) rather than a grid."""
     path = Path(path)
-    if path.suffix in (".stress", ".carti"):
+    if is_tsv_file(path):
         return True
     try:
         with np.load(path) as data:
@@ -31,15 +52,14 @@ def is_mesh_file(path):
 
 def mesh_arrays(path):
     """``(nodes, cells, stress)`` of a mesh file, cells as stored (tetrahedra or hexahedra)."""
-    path = Path(path)
-    if path.suffix in (".stress", ".carti"):
-        model = read_stress_file(path) if path.suffix == ".stress" else read_carti_file(path).model()
+    if is_tsv_file(path):
+        model = read_tsv_model(path)
         return model.vertices, model.elements, model.stress
     return load_mesh_arrays(path)
 
 
 def load_mesh(path) -> TetMeshStress:
-    """The mesh of a 3D-TSV ``.stress``/``.carti`` file or of a mesh ``.npz`` (FEM result).
+    """The mesh of a 3D-TSV file (with its boundary conditions) or of a mesh ``.npz`` (FEM result).
 
     Cached by path and modification time: a ``specimen`` shape and its medium build it once.
     """
@@ -50,6 +70,8 @@ def load_mesh(path) -> TetMeshStress:
 
 @lru_cache(maxsize=8)
 def _mesh_cached(path, mtime_ns, size):
+    if is_tsv_file(path):
+        return read_tsv_model(path).mesh()
     return TetMeshStress.from_cells(*mesh_arrays(path))
 
 
@@ -69,24 +91,23 @@ def export_vtu(path, output, resolution=64):
 def grid_from_file(path, resolution=64):
     """A :class:`~mi_nest.io.grid.StressGrid` from any supported stress file.
 
-    Grids and ``.carti`` files load at their own nodes; meshes (``.stress``, mesh
-    ``.npz``) are resampled with
+    Grids and ``.TSVcarti``/``.carti`` files load at their own nodes; meshes
+    (``.TSV``/``.stress``, mesh ``.npz``) are resampled with
     ``resolution`` nodes along their longest axis. Results are cached by path,
     modification time and resolution, so a specimen and its medium parse once.
     """
     path = Path(path)
     if not path.is_file():
         raise GridFileError(f"stress file not found: {path}")
-    if path.suffix not in SUFFIXES:
-        raise GridFileError(f"{path}: unsupported stress file type '{path.suffix}'; supported: "
-                            f"{', '.join(SUFFIXES)} (grid or mesh .npz, 3D-TSV .stress or .carti)")
+    if not is_stress_file(path):
+        raise GridFileError(f"{path}: unsupported stress file type '{path.suffix}'; supported: {SUPPORTED}")
     stat = os.stat(path)
     return _grid_cached(str(path.resolve()), stat.st_mtime_ns, int(resolution))
 
 
 @lru_cache(maxsize=8)
 def _grid_cached(path, mtime_ns, resolution):
-    if path.endswith(".carti"):
+    if Path(path).suffix.lower() in TSV_GRID_SUFFIXES:
         # Nodal values on a regular grid: trilinear lookup is the hexahedral interpolation itself.
         carti = read_carti_file(path)
         return StressGrid(carti.grid_stress(), carti.lower, carti.upper)

@@ -1,12 +1,15 @@
-"""3D-TSV ``.carti`` files: stress on the solid voxels of a Cartesian grid.
+"""3D-TSV Cartesian-grid files (today's ``.TSVcarti``, the early ``.carti``): stress on solid voxels.
 
 Layout (as read by the 3D-TSV importer; keywords are not checked, only positions):
-three header lines; a line ending in ``CARTESIAN_GRID``; then keyword-prefixed
-values: the voxel counts ``nelx nely nelz``, the lower and upper bounds of the
-box, the number of solid voxels followed (after one more keyword) by their
-0-based ids; a keyword line ending in a field count; then the sections
-``Node Forces``, ``Fixed Nodes`` and ``Cartesian Stress`` as in ``.stress``
-files, with 0-based node ids.
+a line ending in ``CARTESIAN_GRID`` (early files put three lines before it,
+today's none), optionally ``Stress Data Type: NODE|ELEMENT``; then
+keyword-prefixed values: the voxel counts ``nelx nely nelz``, the lower and
+upper bounds of the box, the number of solid voxels followed (after one more
+keyword) by their ids; a keyword line ending in a field count; then the
+sections ``Node Forces``, ``Fixed Nodes`` and ``Cartesian Stress`` as in
+``.TSV`` files. Ids are 0-based in ``.carti`` files and one-based in
+``.TSVcarti`` files (today's importer uses them as MATLAB indices). ``ELEMENT``
+stress has one row per solid voxel and is averaged to the voxels' nodes.
 
 Ids are column-major over (y, x, z) and y runs from the upper bound down:
 voxel ``(ix, iy, iz)`` has id ``iy + nely (ix + nelx iz)``, grid node
@@ -83,15 +86,31 @@ class CartesianGrid:
         return fill_from_nearest(on_grid(values), on_grid(known[:, None])[..., 0])
 
 
-def read_carti_file(path) -> CartesianGrid:
+# Early files put the CARTESIAN_GRID line fourth, today's first.
+_GRID_LINE_WITHIN = 4
+
+
+def read_carti_file(path, one_based=None) -> CartesianGrid:
+    """Parse a ``.TSVcarti`` or ``.carti`` file; ``one_based`` defaults to what the extension says."""
     path = Path(path)
     if not path.is_file():
         raise TsvFileError(f"3D-TSV file not found: {path}")
+    if one_based is None:
+        one_based = path.suffix.lower() == ".tsvcarti"
     lines = path.read_text(encoding="ascii", errors="replace").splitlines()
-    tokens = " ".join(lines[3:]).split()
-    reader = _Tokens(path, tokens)
-    if reader.take(2)[-1].upper() != "CARTESIAN_GRID":
-        raise TsvFileError(f"{path}: not a Cartesian-grid (.carti) file: 'CARTESIAN_GRID' expected on line 4")
+    grid_line = next((i for i, line in enumerate(lines[:_GRID_LINE_WITHIN])
+                      if line.split()[-1:] == ["CARTESIAN_GRID"]), None)
+    if grid_line is None:
+        raise TsvFileError(f"{path}: not a Cartesian-grid (.TSVcarti/.carti) file: no line ending in "
+                           f"'CARTESIAN_GRID' among its first {_GRID_LINE_WITHIN}")
+    element_stress, body = False, grid_line + 1
+    if body < len(lines) and lines[body].lower().startswith("stress data type"):
+        kind = lines[body].partition(":")[2].strip().upper()
+        if kind not in ("NODE", "ELEMENT"):
+            raise TsvFileError(f"{path}:{body + 1}: unknown stress data type {kind!r}; 3D-TSV writes NODE "
+                               "(one stress per grid node) or ELEMENT (one per solid voxel)")
+        element_stress, body = kind == "ELEMENT", body + 1
+    reader = _Tokens(path, " ".join(lines[body:]).split())
     cells = tuple(int(v) for v in reader.keyword_numbers(3, int))
     if min(cells) < 1:
         raise TsvFileError(f"{path}: voxel counts must be positive, got {cells}")
@@ -100,21 +119,38 @@ def read_carti_file(path) -> CartesianGrid:
         raise TsvFileError(f"{path}: upper bound {upper} must exceed lower bound {lower}")
     count = int(reader.keyword_numbers(1, int)[0])
     reader.take(1)
-    voxels = np.unique(reader.numbers(count, int))
+    first = int(one_based)
+    voxels = np.unique(reader.numbers(count, int)) - first
     if len(voxels) != count or voxels.min() < 0 or voxels.max() >= np.prod(cells):
-        raise TsvFileError(f"{path}: solid voxel ids must be {count} distinct values in 0..{np.prod(cells) - 1}")
+        raise TsvFileError(f"{path}: solid voxel ids must be {count} distinct values in {first}.."
+                           f"{np.prod(cells) - 1 + first}{_BASE_HINT[one_based]}")
     reader.take(4)
     reader.numbers(1, int)
     forces = reader.section(4, float)
-    fixed = reader.section(1, int)[:, 0]
+    fixed = reader.section(1, int)[:, 0].astype(np.int64) - first
     stress = reader.section(6, float)
-    grid = CartesianGrid(cells, lower, upper, voxels, np.zeros(0, np.int64), stress, forces,
-                         fixed.astype(np.int64))
-    node_ids = np.unique(grid.hexahedra())
-    if len(stress) != len(node_ids):
+    grid = CartesianGrid(cells, lower, upper, voxels, np.zeros(0, np.int64), stress, forces, fixed)
+    hexahedra = grid.hexahedra()
+    node_ids = np.unique(hexahedra)
+    if element_stress:
+        if len(stress) != len(voxels):
+            raise TsvFileError(f"{path}: {len(stress)} stress rows for {len(voxels)} solid voxels "
+                               "('Stress Data Type: ELEMENT': one per voxel)")
+        from ..fields.mesh import nodal_average
+        stress = nodal_average(grid.node_coordinates(node_ids), np.searchsorted(node_ids, hexahedra), stress)
+    elif len(stress) != len(node_ids):
         raise TsvFileError(f"{path}: {len(stress)} stress rows for the {len(node_ids)} nodes of the solid voxels")
-    return CartesianGrid(cells, lower, upper, voxels, node_ids, stress.astype(np.float32), forces,
-                         fixed.astype(np.int64))
+    if len(forces):
+        forces[:, 0] -= first
+    for name, nodes in (("Node Forces", forces[:, 0]), ("Fixed Nodes", fixed)):
+        if len(nodes) and not np.all(np.isin(nodes, node_ids)):
+            raise TsvFileError(f"{path}: section '{name}' refers to grid nodes of no solid voxel "
+                               f"(first {int(nodes[~np.isin(nodes, node_ids)][0]) + first}){_BASE_HINT[one_based]}")
+    return CartesianGrid(cells, lower, upper, voxels, node_ids, stress.astype(np.float32), forces, fixed)
+
+
+_BASE_HINT = {True: " (ids are one-based in .TSVcarti files; a file with 0-based ids is an early .carti)",
+              False: " (ids are 0-based in .carti files; a file with one-based ids is a .TSVcarti)"}
 
 
 class _Tokens:
@@ -140,31 +176,50 @@ class _Tokens:
         return self.numbers(count, kind)
 
     def section(self, width, kind):
-        self.take(2)
+        name = " ".join(self.take(2))
         rows = int(self.numbers(1, int)[0])
-        return self.numbers(rows * width, kind).reshape(rows, width)
+        table = self.numbers(rows * width, kind).reshape(rows, width)
+        if not np.all(np.isfinite(table)):
+            raise TsvFileError(f"{self.path}: section {name!r} holds NaN or inf values")
+        return table
 
 
-def write_carti_file(path, cells, lower, upper, voxels, stress_of_node, node_forces=(), fixed_nodes=()):
-    """Write a ``.carti`` file; ``stress_of_node(points)`` gives (K, 6) stress at node positions."""
+def write_carti_file(path, cells, lower, upper, voxels, stress_at, node_forces=(), fixed_nodes=(),
+                     element_stress=False):
+    """Write a Cartesian-grid file: today's ``.TSVcarti`` under that name (any case), else an early ``.carti``.
+
+    ``stress_at(points)`` gives (K, 6) stress at the nodes of the solid voxels,
+    or at their centres with ``element_stress`` (written as ``Stress Data Type:
+    ELEMENT``, ``.TSVcarti`` only). Voxel and node ids are given 0-based.
+    """
+    today = Path(path).suffix.lower() == ".tsvcarti"
+    if element_stress and not today:
+        raise ValueError("element-wise stress needs today's format: name the file .TSVcarti")
+    first = int(today)
     grid = CartesianGrid(tuple(cells), np.asarray(lower, float), np.asarray(upper, float),
                          np.unique(voxels), np.zeros(0, np.int64), np.zeros((0, 6)), np.zeros((0, 4)),
                          np.zeros(0, np.int64))
-    node_ids = np.unique(grid.hexahedra())
-    stress = np.asarray(stress_of_node(grid.node_coordinates(node_ids)))
+    hexahedra = grid.hexahedra()
+    node_ids = np.unique(hexahedra)
+    points = (grid.node_coordinates(hexahedra.ravel()).reshape(-1, 8, 3).mean(axis=1) if element_stress
+              else grid.node_coordinates(node_ids))
+    stress = np.asarray(stress_at(points))
     with open(path, "w", encoding="ascii") as out:
-        out.write("# vtk DataFile Version 3.0\nmi_nest\nASCII\nDATASET CARTESIAN_GRID\n")
+        if today:
+            out.write(f"DATASET CARTESIAN_GRID\nStress Data Type: {'ELEMENT' if element_stress else 'NODE'}\n")
+        else:
+            out.write("# vtk DataFile Version 3.0\nmi_nest\nASCII\nDATASET CARTESIAN_GRID\n")
         out.write("Resolution: {} {} {}\n".format(*cells))
         out.write("LowerBound: {:.9e} {:.9e} {:.9e}\n".format(*lower))
         out.write("UpperBound: {:.9e} {:.9e} {:.9e}\n".format(*upper))
         out.write(f"SolidVoxels: {len(grid.voxels)}\nVoxelIds:\n")
-        np.savetxt(out, grid.voxels[None, :], fmt="%d")
+        np.savetxt(out, grid.voxels[None, :] + first, fmt="%d")
         out.write("Number of Stress Fields: 1\n")
         out.write(f"Node Forces: {len(node_forces)}\n")
         for node, fx, fy, fz in node_forces:
-            out.write(f"{int(node)} {fx:.9e} {fy:.9e} {fz:.9e}\n")
+            out.write(f"{int(node) + first} {fx:.9e} {fy:.9e} {fz:.9e}\n")
         out.write(f"Fixed Nodes: {len(fixed_nodes)}\n")
         for node in fixed_nodes:
-            out.write(f"{int(node)}\n")
-        out.write(f"Cartesian Stress: {len(node_ids)}\n")
+            out.write(f"{int(node) + first}\n")
+        out.write(f"Cartesian Stress: {len(stress)}\n")
         np.savetxt(out, stress, fmt="%.9e")
