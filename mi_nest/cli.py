@@ -7,6 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from . import interrupts
 from .rig.errors import RigError
 
 DEFAULT_SCENE = "disk_compression"
@@ -245,9 +246,9 @@ def _truth_beside_reconstruction(reconstruction, defines, out):
 
 
 def _export(field, output, defines, resolution):
-    from .fields.sources import export_vtu, is_stress_file
+    from .fields.sources import export_vtu, is_stress_file, stress_file
     if is_stress_file(field):
-        summary = export_vtu(field, output, resolution)
+        summary = export_vtu(stress_file(field), output, resolution)
         print(f"wrote {Path(output).resolve()} ({summary})")
         return
     from . import load_scene
@@ -353,11 +354,17 @@ def _reconstruct(args):
         options["time_limit"] = 60.0 * args.minutes     # optimize's config refuses a non-positive limit
         options.setdefault("iterations", UNBOUNDED_ITERATIONS)
     from . import load_scene
+    from .io.lock import locked_directory
+    from .reconstruct import CheckpointError
     scene = load_scene(scene_file, **defines)
-    result = optimize(scene, dataset, output=args.output, resume=not args.restart, progress=not args.no_progress,
-                      truth=None if args.no_truth else "scene", **options)
-    print(result.describe())
-    written = write_test_view(scene, result, args.output, dataset)
+    with locked_directory(args.output):     # the test view too: no other run between the result and it
+        try:
+            result = optimize(scene, dataset, output=args.output, resume=not args.restart,
+                              progress=not args.no_progress, truth=None if args.no_truth else "scene", **options)
+        except CheckpointError as error:
+            raise ValueError(f"{error.problem}; add --restart to start over") from None
+        print(result.describe())
+        written = write_test_view(scene, result, args.output, dataset)
     print(f"wrote {Path(args.output).resolve()} (field.npz, reconstruction.json{written})")
     return result
 
@@ -418,6 +425,11 @@ def _format_warning(message, category, filename, lineno, line=None):
 
 def main(argv=None):
     args = _parser().parse_args(argv)
+    with interrupts.handling():
+        return _run(args)
+
+
+def _run(args):
     formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
         if args.command == "render":
@@ -445,12 +457,34 @@ def main(argv=None):
             from . import scene_path
             for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
                 print(path.stem)
+    except KeyboardInterrupt as interrupt:
+        return _interrupted(args.command, interrupt)
     except (ValueError, OSError, RigError) as error:
+        if interrupts.received():
+            return _interrupted(args.command)
         print(f"mi-nest: error: {error}", file=sys.stderr)
         return 2
+    except Exception:
+        # Ctrl-C inside a Dr.Jit or Mitsuba callback comes out as their own error.
+        if interrupts.received():
+            return _interrupted(args.command)
+        raise
     finally:
         warnings.formatwarning = formatwarning
     return 0
+
+
+# What an interrupted run of these commands kept, beyond what the interruption itself says.
+KEPT_WHEN_INTERRUPTED = {"simulate": "the rotations written so far are kept: run the same command again to resume",
+                         "acquire": "every journaled frame is kept: run the same command again to resume"}
+# The shell's exit status for a process ended by SIGINT (128 + 2).
+INTERRUPTED_STATUS = 130
+
+
+def _interrupted(command, interrupt=None):
+    detail = str(interrupt or "") or KEPT_WHEN_INTERRUPTED.get(command)
+    print("mi-nest: interrupted" + (f"; {detail}" if detail else ""), file=sys.stderr)
+    return INTERRUPTED_STATUS
 
 
 if __name__ == "__main__":

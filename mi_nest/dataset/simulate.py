@@ -16,9 +16,11 @@ import mitsuba as mi
 import numpy as np
 
 from .. import __version__
+from ..arguments import whole_number
 from ..io.exr import ExrFileError, read_channels, read_metadata, write_channels
+from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
-from ..render import SceneError, load_scene, render
+from ..render import SceneError, load_scene, render, render_plan
 from ..render import scene_file as resolved_scene_file
 from . import format as fmt
 from .camera import CameraModel
@@ -39,6 +41,12 @@ class SimulationSettings:
     camera: CameraModel = field(default_factory=CameraModel)
     dolp_threshold: float = 0.95
     half: bool = True                # half-float EXR channels
+
+    def __post_init__(self):
+        # Checked before anything is written: 0 must not stand for the scene's own sample count.
+        for name in ("azimuths", "elevations", "res", "spp"):
+            if getattr(self, name) is not None:
+                whole_number(name, getattr(self, name))
 
 
 @dataclass
@@ -131,13 +139,19 @@ def _index(scene, scene_file, defines, settings, rotations):
 def simulate(scene_file, output, settings=SimulationSettings(), defines=(), progress=True, on_rotation=None):
     """Render the dataset of ``scene_file`` into ``output``; resume it if it was interrupted.
 
-    ``on_rotation(entry)`` is called after each rotation is safely on disk.
+    ``on_rotation(entry)`` is called after each rotation is safely on disk. The
+    run holds ``output``: a second writer gets a
+    :class:`~mi_nest.io.lock.DirectoryInUseError`.
     """
-    output = Path(output)
-    defines = dict(defines)
+    with locked_directory(output):
+        return _simulate(scene_file, Path(output), settings, dict(defines), progress, on_rotation)
+
+
+def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     if settings.res is not None:
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
+    render_plan(scene, settings.spp)     # an image that cannot be rendered is refused before anything is written
     rotations = rotation_grid(settings.azimuths, settings.elevations, settings.azimuth_range,
                               settings.elevation_range, settings.test_fraction, settings.split_seed)
     index = _index(scene, scene_file, defines, settings, rotations)
@@ -150,17 +164,15 @@ def simulate(scene_file, output, settings=SimulationSettings(), defines=(), prog
         if differing:
             raise fmt.DatasetError(f"{output} holds a dataset made with other settings ({', '.join(differing)}); "
                                    "choose a new directory or delete it")
-    elif output.exists() and any(output.iterdir()):
+    elif other_entries(output):
         raise fmt.DatasetError(f"{output} exists and is not an mi_nest dataset; choose an empty directory")
     fmt.write_index(output, index)
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=len(rotations), desc="simulate", unit="rotation")
+    from tqdm import tqdm
+    bar = tqdm(total=len(rotations), desc="simulate", unit="rotation", disable=not progress)
     rendered = kept = 0
     render_seconds = write_seconds = 0.0
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends
         warnings.simplefilter("always")
         for entry in index["rotations"]:
             rendered_now = _rotation(scene, output, entry, settings)
@@ -169,12 +181,9 @@ def simulate(scene_file, output, settings=SimulationSettings(), defines=(), prog
             if rendered_now is not None:
                 render_seconds += rendered_now[0]
                 write_seconds += rendered_now[1]
-            if bar is not None:
-                bar.update()
+            bar.update()
             if on_rotation is not None:
                 on_rotation(entry)
-    if bar is not None:
-        bar.close()
     if caught:
         # One summary, not one warning per rotation.
         warnings.warn(f"{len(caught)} warning(s) over {rendered} rendered rotations; the last: {caught[-1].message}",

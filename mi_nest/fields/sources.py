@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import zipfile
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,16 @@ def read_tsv_model(path):
         return read_stress_file(path)
     return read_carti_file(path).model()
 
+
+def stress_file(path) -> Path:
+    """The stress file ``path`` stands for: itself, or a bare file name of the shipped data
+    (``kitten.stress``), as ``mi-nest render kitten`` finds a shipped scene from anywhere."""
+    path = Path(path)
+    if not path.exists() and len(path.parts) == 1:
+        shipped = Path(resources.files("mi_nest.scenes") / "data" / path.name)
+        if shipped.is_file():
+            return shipped
+    return path
 
 
 def is_mesh_file(path):

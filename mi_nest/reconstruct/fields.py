@@ -22,6 +22,7 @@ import drjit.nn as nn
 import mitsuba as mi
 import numpy as np
 
+from ..arguments import whole_number
 from ..fields.base import StressField
 from ..io.grid import grid_nodes
 
@@ -52,8 +53,7 @@ class FieldConfig:
             raise ValueError(f"field kind must be one of {KINDS + ('auto',)}, got '{self.kind}'")
         for name in ("resolution", "levels", "features_per_level", "hashmap_size", "base_resolution", "width",
                      "layers", "octaves"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"field option '{name}' must be a positive integer, got {getattr(self, name)}")
+            whole_number(name, getattr(self, name))
         if self.resolution < 2:
             raise ValueError(f"grid resolution must be at least 2, got {self.resolution}")
         if not self.smoothness >= 0:

@@ -15,6 +15,7 @@ import json
 import math
 import time
 import warnings
+import zipfile
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -22,9 +23,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .. import interrupts
+from ..arguments import whole_number
 from ..dataset import Dataset
 from ..dataset.simulate import specimen_bounds, specimen_media, specimen_shapes
 from ..io.atomic import atomic_path
+from ..io.lock import locked_directory
 from ..physics import MEASUREMENTS
 from ..physics.aliasing import NYQUIST
 from ..render import load_scene
@@ -74,8 +78,8 @@ class OptimizeConfig:
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got '{self.method}'")
-        if self.pixel_samples is not None and int(self.pixel_samples) < 1:
-            raise ValueError(f"'pixel_samples' must be a positive integer, got {self.pixel_samples}")
+        if self.pixel_samples is not None:
+            whole_number("pixel_samples", self.pixel_samples)
         if not 0 <= self.warm_start < 1:
             raise ValueError(f"'warm_start' is a share of the run in [0, 1), got {self.warm_start}")
         if self.warm_start and self.method == "two-step":
@@ -83,11 +87,10 @@ class OptimizeConfig:
                              "method 'two-step' is that fit already")
         if not 0 <= self.average_last < 1:
             raise ValueError(f"'average_last' is a share of the run in [0, 1), got {self.average_last}")
-        if int(self.track_error_every) < 0:
-            raise ValueError(f"'track_error_every' must be >= 0 (0: never), got {self.track_error_every}")
+        for name in ("track_error_every", "evaluate_views", "seed"):     # track_error_every 0: never
+            whole_number(name, getattr(self, name), minimum=0)
         for name in ("iterations", "batch_size", "views_per_batch", "checkpoint_every"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"'{name}' must be a positive integer, got {getattr(self, name)}")
+            whole_number(name, getattr(self, name))
         for name in ("learning_rate", "final_learning_rate"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -116,6 +119,31 @@ class OptimizeConfig:
 
 class DivergenceError(RuntimeError):
     """The optimisation produced a non-finite loss or an exploding gradient."""
+
+
+class CheckpointError(ValueError):
+    """The output directory's checkpoint cannot be resumed from; ``problem`` says why, without the remedy
+    (``resume=False`` here, ``--restart`` on the command line)."""
+
+    def __init__(self, problem):
+        super().__init__(f"{problem}; pass resume=False to start over")
+        self.problem = problem
+
+
+# What every checkpoint holds; one without them was cut short or is not a checkpoint.
+CHECKPOINT_KEYS = ("config", "dataset", "iteration", "seconds", "history", "rng")
+
+
+def _read_checkpoint(path):
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            state = {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise CheckpointError(f"{path} is not a readable checkpoint ({error})") from error
+    missing = [key for key in CHECKPOINT_KEYS if key not in state]
+    if missing:
+        raise CheckpointError(f"{path} is not a whole checkpoint (no {', '.join(missing)})")
+    return state
 
 
 @dataclass
@@ -253,16 +281,20 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     run = _Run(scene, dataset, config, low, high, scale, output, progress)
     if truth_field is not None and config.track_error_every:
         run.error_probe = metrics.ErrorProbe(truth_field, metrics.evaluation_points(scene, shapes))
-    if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
-        run.restore(Path(output) / CHECKPOINT)
-    with with_field(scene, run.field):
-        run.loop()
-    result = run.result()
-    with with_field(scene, result.field):
-        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
-                                       config.evaluate_views, config.mask, shapes))
-    if output is not None:
-        result.save(output)
+    with contextlib.ExitStack() as stack:
+        if output is not None:
+            stack.enter_context(locked_directory(output))
+        if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
+            run.restore(Path(output) / CHECKPOINT)
+        # Ctrl-C waits for the end of an iteration, so that the checkpoint holds whole steps.
+        with with_field(scene, run.field), interrupts.deferred():
+            run.loop()
+        result = run.result()
+        with with_field(scene, result.field):
+            result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
+                                           config.evaluate_views, config.mask, shapes))
+        if output is not None:
+            result.save(output)
     return result
 
 
@@ -401,6 +433,7 @@ class _Run:
                        else None)
         try:
             while self.iteration < config.iterations and not self.out_of_time():
+                interrupts.check()
                 self._refine_if_due()
                 if self.fitting_retardance() != phase:
                     # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
@@ -429,7 +462,9 @@ class _Run:
                 self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
         except KeyboardInterrupt:
             self.checkpoint()
-            raise
+            where = "" if self.output is None else f", checkpoint in {self.output / CHECKPOINT}"
+            raise interrupts.Interrupted(f"stopped after iteration {self.iteration}{where}; run it again to resume "
+                                         "from there") from None
         finally:
             if bar is not None:
                 bar.close()
@@ -559,12 +594,11 @@ class _Run:
             _save_npz(tmp, state)
 
     def restore(self, path):
-        with np.load(path, allow_pickle=False) as data:
-            state = {key: data[key] for key in data.files}
+        state = _read_checkpoint(path)
         if json.loads(str(state["config"])) != _plain_config(self.config) or \
                 str(state["dataset"]) != str(self.dataset.directory.resolve()):
-            raise ValueError(f"{path} is a checkpoint of another run (other options or dataset); choose another "
-                             "output directory, or pass resume=False to start over")
+            raise CheckpointError(f"{path} is a checkpoint of another run (other options or dataset); choose "
+                                  "another output directory")
         field_state = {k[len("field."):]: v for k, v in state.items() if k.startswith("field.")}
         field_state["config"] = json.loads(str(field_state["config"]))
         self.field = field_from_state(field_state)

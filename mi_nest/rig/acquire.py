@@ -30,6 +30,7 @@ import logging
 import os
 import sys
 import warnings
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,7 @@ from ..dataset.masks import ANALYSERS, dolp_mask
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
 from ..io.exr import write_channels
+from ..io.lock import locked_directory, other_entries
 from ..physics.polariscope import measurement_name
 from .calibration import Exposure, expected_exposures, fit
 from .errors import CommunicationError, RigError
@@ -57,6 +59,10 @@ QWP2_SETTINGS = (0.0, 45.0)
 
 class AcquisitionError(RigError):
     """The run cannot go on (a frame failed every attempt, or the directory holds another acquisition)."""
+
+
+class NoOperatorError(ValueError):
+    """Nobody can answer the operator's prompt (its input has ended). Not a device error: never retried."""
 
 
 @dataclass(frozen=True)
@@ -254,7 +260,11 @@ class Rig:
 
 def terminal_operator(message):
     """Ask the person at the rig and wait for Enter."""
-    input(f"{message}: ")
+    try:
+        input(f"{message}: ")
+    except EOFError:
+        raise NoOperatorError("the run waits for the operator at the manual QWP1, but its input has ended (no "
+                              "terminal); pass --yes to run unattended") from None
 
 
 def unattended_operator(message):
@@ -319,6 +329,21 @@ def _read_frame(path):
         return {a: data[f"analyzer_{a}"] for a in ANALYSERS}
 
 
+def _readable_frame(path):
+    try:
+        _read_frame(path)
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
+        return False
+    return True
+
+
+def _drop_from_journal(path, keys):
+    """Rewrite the journal without the commit lines of the frames ``keys``."""
+    lines = [line for line in Path(path).read_text().splitlines() if json.loads(line).get("key") not in keys]
+    with atomic_path(path, ".jsonl") as tmp:
+        Path(tmp).write_text("\n".join(lines) + "\n")
+
+
 # --- acquisition -----------------------------------------------------------------------------------
 @dataclass
 class AcquisitionReport:
@@ -355,13 +380,27 @@ class _Acquisition:
             if header["identity"] != json.loads(json.dumps(identity)):
                 raise AcquisitionError(f"{self.output} holds an acquisition with another camera, schedule or "
                                        "calibration; choose a new directory or delete it")
+            self._retake_unreadable(done)
             return done
-        if self.output.exists() and any(self.output.iterdir()):
+        if other_entries(self.output):
             raise AcquisitionError(f"{self.output} exists and holds no acquisition journal; choose an empty directory")
         (self.output / FRAMES).mkdir(parents=True, exist_ok=True)
         _append_line(self.journal, {"journal": JOURNAL_FORMAT, "version": JOURNAL_VERSION, "identity": identity,
                                     "rig": self.config.to_dict(), "frames": len(self.frames)})
         return {}
+
+    def _retake_unreadable(self, done):
+        """Forget the journaled frames that a rotation still to be assembled needs but whose files cannot be
+        read (damaged on disk): the journal no longer commits them, and this run captures them again."""
+        lost = [key for rotation in self.rotations
+                if self._complete(rotation, done) and not (self.output / fmt.rotation_file(rotation.index)).is_file()
+                for key in self._keys(rotation) if not _readable_frame(self.output / done[key]["file"])]
+        if lost:
+            log.warning("%s: %d journaled frame file(s) cannot be read (%s); capturing them again", self.output,
+                        len(lost), ", ".join(lost))
+            for key in lost:
+                del done[key]
+            _drop_from_journal(self.journal, lost)
 
     def run(self, progress):
         done = self.open_journal()
@@ -500,7 +539,8 @@ def acquire(config, output, operator=unattended_operator, progress=True, on_fram
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            return _Acquisition(config, output, operator, on_frame, on_retry).run(progress)
+            with locked_directory(output):
+                return _Acquisition(config, output, operator, on_frame, on_retry).run(progress)
         finally:
             if caught:
                 # one summary, not one warning per rendered view of the twin
