@@ -154,12 +154,19 @@ def _parser():
     acquire.add_argument("--dry-run", action="store_true", help="print the schedule and its estimated duration")
     acquire.add_argument("--yes", action="store_true", help="do not wait for the operator at the manual QWP1")
     acquire.add_argument("--quiet", action="store_true", help="no progress bar")
+    acquire.add_argument("--unverified-handedness", action="store_true",
+                         help="capture although the calibration has no verified handedness (mi-nest calibrate's "
+                              "check on a specimen of known stress); the dataset records it as unverified")
 
     calibrate = commands.add_parser("calibrate", help="fit the polariscope's angle offsets and retardances from a "
-                                                      "free-space sweep on the rig (no specimen in view)")
+                                                      "free-space sweep on the rig (no specimen in view), then check "
+                                                      "its handedness on a specimen of known stress")
     calibrate.add_argument("rig", help="rig file (TOML), or a shipped one by name (rig_twin)")
     calibrate.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     calibrate.add_argument("--yes", action="store_true", help="do not wait for the operator at the manual QWP1")
+    calibrate.add_argument("--skip-handedness", action="store_true",
+                           help="no specimen of known stress at hand: skip the handedness check; the calibration "
+                                "then records it as unverified and acquire needs --unverified-handedness")
 
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
@@ -400,7 +407,8 @@ def _acquire(args):
         acquisition.dry_run(config)
         return
     operator = acquisition.unattended_operator if args.yes else acquisition.terminal_operator
-    report = acquisition.acquire(config, args.output, operator=operator, progress=not args.quiet)
+    report = acquisition.acquire(config, args.output, operator=operator, progress=not args.quiet,
+                                 unverified_handedness=args.unverified_handedness)
     print(report.describe())
     print(f"wrote {Path(args.output).resolve()}")
 
@@ -412,7 +420,7 @@ def _calibrate(args):
     from .rig.config import load
     config = load(args.rig)
     operator = acquisition.unattended_operator if args.yes else acquisition.terminal_operator
-    calibration = acquisition.calibrate(config, operator=operator)
+    calibration = acquisition.calibrate(config, operator=operator, check_handedness=not args.skip_handedness)
     print(calibration.describe())
     with atomic_path(args.output, ".json") as tmp:
         Path(tmp).write_text(json.dumps(calibration.to_dict(), indent=1))

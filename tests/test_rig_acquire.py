@@ -72,7 +72,7 @@ def assert_same_dataset(a, b):
 
 def test_a_twin_capture_is_the_simulated_dataset_and_reconstructs(tmp_path):
     config = load(rig_file(tmp_path))
-    report = acquire(config, tmp_path / "captured", progress=False)
+    report = acquire(config, tmp_path / "captured", progress=False, unverified_handedness=True)
     assert report.captured == len(schedule(config)) == 16 and report.kept == 0
     captured = mi_nest.Dataset(tmp_path / "captured")
     assert captured.index["source"]["kind"] == "captured" and captured.index["complete"]
@@ -103,7 +103,7 @@ def test_a_twin_capture_is_the_simulated_dataset_and_reconstructs(tmp_path):
 
 def test_an_interrupted_capture_resumes_without_losing_or_repeating_a_frame(tmp_path):
     config = load(rig_file(tmp_path))
-    acquire(config, tmp_path / "reference", progress=False)
+    acquire(config, tmp_path / "reference", progress=False, unverified_handedness=True)
     keys = [frame.key for frame in schedule(config)]
 
     def stop_after(count):
@@ -114,7 +114,7 @@ def test_an_interrupted_capture_resumes_without_losing_or_repeating_a_frame(tmp_
 
     output = tmp_path / "interrupted"
     with pytest.raises(KeyboardInterrupt):
-        acquire(config, output, progress=False, on_frame=stop_after(5))
+        acquire(config, output, progress=False, unverified_handedness=True, on_frame=stop_after(5))
     assert journal_keys(output) == keys[:5]
     assert not mi_nest.Dataset(output, allow_incomplete=True).index["complete"]
     # a frame written but not committed, and a journal line torn by a crash, are both redone
@@ -122,9 +122,9 @@ def test_an_interrupted_capture_resumes_without_losing_or_repeating_a_frame(tmp_
     with open(output / JOURNAL, "a") as journal:
         journal.write('{"key": "' + keys[5])
     with pytest.raises(KeyboardInterrupt):
-        acquire(config, output, progress=False, on_frame=stop_after(11))
+        acquire(config, output, progress=False, unverified_handedness=True, on_frame=stop_after(11))
     assert journal_keys(output) == keys[:11]
-    report = acquire(config, output, progress=False)
+    report = acquire(config, output, progress=False, unverified_handedness=True)
     assert (report.captured, report.kept) == (5, 11)
     assert journal_keys(output) == keys
     assert_same_dataset(output, tmp_path / "reference")
@@ -152,7 +152,8 @@ def test_device_faults_are_survived_and_measured_positions_recorded(tmp_path):
         sim.device(URLS["azimuth"]).disconnected = False      # the cable goes back in
 
     output = tmp_path / "faulty"
-    report = acquire(config, output, progress=False, on_frame=on_frame, on_retry=on_retry)
+    report = acquire(config, output, progress=False, unverified_handedness=True,
+                     on_frame=on_frame, on_retry=on_retry)
     assert retried and all(kind == "CommunicationError" for _, kind in retried)
     assert report.retries == len(retried)
     assert journal_keys(output) == [frame.key for frame in schedule(config)]
@@ -177,10 +178,10 @@ def test_a_frame_that_keeps_failing_stops_the_run_with_the_journal_intact(tmp_pa
             sim.device(URLS["qwp2"]).inject("disconnect_mid_move")     # and nobody plugs it back in
 
     with pytest.raises(AcquisitionError, match="failed 4 times.*run the same command again to resume"):
-        acquire(config, output, progress=False, on_frame=on_frame)
+        acquire(config, output, progress=False, unverified_handedness=True, on_frame=on_frame)
     assert journal_keys(output) == [frame.key for frame in schedule(config)][:4]
     sim.device(URLS["qwp2"]).disconnected = False
-    report = acquire(config, output, progress=False)
+    report = acquire(config, output, progress=False, unverified_handedness=True)
     assert (report.captured, report.kept) == (12, 4)
     assert mi_nest.Dataset(output).index["complete"]
 
@@ -302,7 +303,8 @@ def test_soak_two_thousand_moves_with_random_faults(tmp_path):
     output = tmp_path / "soak"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        report = acquire(config, output, progress=False, on_frame=on_frame, on_retry=on_retry)
+        report = acquire(config, output, progress=False, unverified_handedness=True,
+                         on_frame=on_frame, on_retry=on_retry)
     assert len(injected) > 100 and report.retries > 10
     assert journal_keys(output) == [frame.key for frame in frames]
     assert mi_nest.Dataset(output).index["complete"]

@@ -56,5 +56,6 @@ def test_without_harvesters_the_camera_says_how_to_get_it(tmp_path, capsys):
     camera = GENICAM_RIG["camera"]
     path.write_text('[devices]\nazimuth = "/dev/null"\nelevation = "/dev/null"\nqwp2 = "/dev/null"\n'
                     f'[camera]\nkind = "genicam"\ncti = "{camera["cti"]}"\nscene = "disk_compression"\n')
-    assert main(["acquire", str(path), "-o", str(tmp_path / "capture"), "--yes", "--quiet"]) == 2
+    assert main(["acquire", str(path), "-o", str(tmp_path / "capture"), "--yes", "--quiet",
+                 "--unverified-handedness"]) == 2
     assert "pip install 'mi_nest[genicam]'" in capsys.readouterr().err

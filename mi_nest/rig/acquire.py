@@ -44,6 +44,7 @@ from ..io.atomic import atomic_path
 from ..io.exr import write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.polariscope import measurement_name
+from . import handedness
 from .calibration import Exposure, expected_exposures, fit
 from .errors import CommunicationError, RigError
 
@@ -124,6 +125,9 @@ def dry_run(config, out=print, shown=6):
     out("calibration: " + ("none (nominal angles)" if optics is None else
                            f"{config.calibration} (QWP1 offset {optics.qwp1_offset:.3f} deg, "
                            f"QWP2 offset {optics.qwp2_offset:.3f} deg)"))
+    record = handedness.capture_record(config)
+    out("handedness: " + ("verified" if record["verified"] else
+                          f"unverified ({record['reason']}): acquire refuses it without --unverified-handedness"))
     for frame in frames[:shown]:
         out(f"  frame {frame.number}: {frame.key}  azimuth {frame.rotation.azimuth:g}  elevation "
             f"{frame.rotation.elevation:g}  QWP1 {frame.qwp1:g}  QWP2 {frame.qwp2:g}")
@@ -163,6 +167,13 @@ class TwinBackend:
     def set_qwp1(self, reading):
         """The operator's turn of the manual plate, in the twin's world."""
         self.camera.qwp1 = reading
+
+    def put_in_view(self, specimen):
+        """The operator's placing of ``specimen`` (a ``config.KnownSpecimen``), in the twin's world."""
+        from . import twin
+        camera = self.config.camera
+        self.camera.show(twin.scene_renderer(specimen.scene, specimen.defines, camera.resolution, camera.supersample,
+                                             camera.spp))
 
     def capture(self, frame_number, clock):
         # the noise of a frame is seeded by its number, so a resumed run captures what an uninterrupted one would
@@ -359,8 +370,9 @@ class AcquisitionReport:
 
 
 class _Acquisition:
-    def __init__(self, config, output, operator, on_frame, on_retry):
+    def __init__(self, config, output, operator, on_frame, on_retry, handedness_record):
         self.config = config
+        self.handedness = handedness_record
         self.output = Path(output)
         self.operator = operator
         self.on_frame = on_frame
@@ -447,6 +459,7 @@ class _Acquisition:
                                 "defines": self.index["source"]["defines"], "rig": self.config.to_dict()}
         self.index["mask_channels"] = ["mask.dolp"]
         self.index["calibration"] = None if self.optics is None else self.optics.to_dict()
+        self.index["handedness"] = self.handedness
         self.index["journal"] = JOURNAL
         for entry in self.index["rotations"]:
             entry["nominal"] = {"azimuth": entry["azimuth"], "elevation": entry["elevation"]}
@@ -530,17 +543,22 @@ class _Acquisition:
                                      "mi_nest.elevation": elevation, "mi_nest.source": "captured"})
 
 
-def acquire(config, output, operator=unattended_operator, progress=True, on_frame=None, on_retry=None):
+def acquire(config, output, operator=unattended_operator, progress=True, on_frame=None, on_retry=None,
+            unverified_handedness=False):
     """Capture (or resume capturing) the dataset of ``config`` into ``output``; see the module docstring.
+
+    A calibration without a verified handedness (``handedness.py``) is refused unless ``unverified_handedness``;
+    the dataset then records that it is unverified.
 
     ``operator(message)`` is asked to turn the manual QWP1; ``on_frame(record)`` runs after each frame is
     committed; ``on_retry(frame, error, attempt)`` after each failed attempt, before reconnecting.
     """
+    handedness_record = handedness.admit(config, unverified_handedness)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             with locked_directory(output):
-                return _Acquisition(config, output, operator, on_frame, on_retry).run(progress)
+                return _Acquisition(config, output, operator, on_frame, on_retry, handedness_record).run(progress)
         finally:
             if caught:
                 # one summary, not one warning per rendered view of the twin
@@ -549,23 +567,52 @@ def acquire(config, output, operator=unattended_operator, progress=True, on_fram
 
 
 # --- calibration -----------------------------------------------------------------------------------
-def calibrate(config, operator=unattended_operator):
-    """The free-space sweep of :func:`~mi_nest.rig.calibration.expected_exposures` on the rig, fitted.
+def calibrate(config, operator=unattended_operator, check_handedness=True):
+    """The free-space sweep of :func:`~mi_nest.rig.calibration.expected_exposures` on the rig, fitted; then the
+    handedness check on the rig file's known specimen (``handedness.py``), which raises
+    :class:`~mi_nest.rig.handedness.HandednessError` unless the rig is as built.
 
     QWP2 positions are the ones read back from the ELL14, not the commanded ones.
     """
     rig = Rig(config, operator, free_space=True)
     try:
         rig.qwp2.home()
-        exposures, qwp1 = [], None
-        for number, (qwp1_setting, qwp2_setting) in enumerate(expected_exposures()):
-            if qwp1_setting != qwp1:
-                rig.set_qwp1(qwp1_setting, qwp1_setting)
-                qwp1 = qwp1_setting
-            rig.qwp2.move_to(qwp2_setting)
-            rig.clock.sleep(config.timing.settle)
-            measured = rig.qwp2.position()
-            exposures.append(Exposure(qwp1_setting, measured, rig.camera.capture(number, rig.clock)))
-        return fit(exposures)
+        sweep = expected_exposures()
+        calibration = fit(_exposures(rig, sweep))
+        if check_handedness:
+            calibration.handedness = _check_handedness(rig, calibration, len(sweep), qwp1=sweep[-1][0])
+            if not calibration.handedness.verified:
+                raise handedness.HandednessError(calibration.handedness.diagnosis())
+        else:
+            handedness.require_unswapped(calibration.optics)
+        return calibration
     finally:
         rig.close()
+
+
+def _exposures(rig, settings, first_number=0, qwp1=None):
+    """One exposure per (QWP1, QWP2) mount setting, numbered from ``first_number``; the operator turns QWP1
+    (now at ``qwp1``) when it changes, and the QWP2 angle recorded is the one read back."""
+    exposures = []
+    for number, (qwp1_setting, qwp2_setting) in enumerate(settings, first_number):
+        if qwp1_setting != qwp1:
+            rig.set_qwp1(qwp1_setting, qwp1_setting)
+            qwp1 = qwp1_setting
+        rig.qwp2.move_to(qwp2_setting)
+        rig.clock.sleep(rig.config.timing.settle)
+        measured = rig.qwp2.position()
+        exposures.append(Exposure(qwp1_setting, measured, rig.camera.capture(number, rig.clock)))
+    return exposures
+
+
+def _check_handedness(rig, calibration, first_number, qwp1):
+    """Home the stages, predict the known specimen there (refusing one that cannot tell the hypotheses apart
+    before anyone fetches it), have it put in view, capture and judge it."""
+    specimen = rig.config.handedness
+    rig.home()
+    model = handedness.SpecimenModel(specimen, rig.config.camera, (rig.azimuth.position(), rig.elevation.position()))
+    model.require_separation(calibration.optics, calibration.light_level)
+    rig.operator(f"Put the specimen of known stress in view at the stages' home: {specimen.describe()}; then "
+                 "press Enter")
+    rig.camera.put_in_view(specimen)
+    return model.judge(calibration, _exposures(rig, handedness.SETTINGS, first_number, qwp1))

@@ -9,9 +9,16 @@ residuals and the parameters' standard errors go into the report.
 Only pixels that stay polarised in every nominal exposure are used (the
 background mask: minimum DoLP above a threshold), so dust or a specimen in
 view does not bias the fit.
+
+Free space cannot tell a mirrored rig, or both waveplates with fast and slow
+axes swapped, from the rig as built (``handedness.py`` checks those on a
+specimen of known stress); so the fitted optics are reported in one form of
+the several that explain the sweep: offsets within 45 degrees, positive
+retardances, and at most one waveplate marked ``swapped``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +34,10 @@ QWP1_SETTINGS = (45.0, 90.0)
 # Degrees within which a measured mount angle counts as a nominal setting.
 SETTING_TOLERANCE = 0.5
 PARAMETERS = ("analyzer_offset", "qwp1_offset", "qwp2_offset", "qwp1_retardance", "qwp2_retardance")
+# The largest free-space residual rms (of the light level) a polariscope fit may leave: camera noise leaves
+# 5e-4 on the twin at 0.5% read noise (0.03 at an absurd 20%), a single mount turning the other way 0.3.
+MAX_RESIDUAL = 0.05
+NOT_CHECKED = {"verified": False, "reason": "calibrated with --skip-handedness, not on a specimen of known stress"}
 
 
 @dataclass
@@ -44,11 +55,13 @@ class Calibration:
     standard_errors: dict        # per parameter, degrees
     exposures: int
     background_fraction: float   # share of pixels the background mask kept
+    handedness: object = None    # the handedness.HandednessCheck, None when not checked
 
     def to_dict(self):
         return {"optics": self.optics.to_dict(), "light_level": self.light_level, "residual_rms": self.residual_rms,
                 "standard_errors": self.standard_errors, "exposures": self.exposures,
-                "background_fraction": self.background_fraction}
+                "background_fraction": self.background_fraction,
+                "handedness": NOT_CHECKED if self.handedness is None else self.handedness.to_dict()}
 
     def describe(self):
         lines = [f"{name} = {getattr(self.optics, name):.3f} deg (+/- {self.standard_errors[name]:.3f})"
@@ -56,6 +69,11 @@ class Calibration:
         lines.append(f"light level {self.light_level:.4f}; residual rms {self.residual_rms:.2e} over "
                      f"{self.exposures} exposures x {len(ANALYSERS)} analysers; background mask keeps "
                      f"{100 * self.background_fraction:.1f}% of the pixels")
+        swapped = [name.upper() for name in ("qwp1", "qwp2") if getattr(self.optics, f"{name}_swapped")]
+        if swapped:
+            lines.append(f"{swapped[0]}'s fast axis is 90 deg from its mark (or the other plate's: free space "
+                         "cannot tell which)")
+        lines.append("handedness not checked" if self.handedness is None else self.handedness.describe())
         return "\n".join(lines)
 
 
@@ -102,15 +120,43 @@ def fit(exposures, threshold=0.9) -> Calibration:
     start = np.array([0.0, 0.0, 0.0, 90.0, 90.0, measured.max()])
     solution = least_squares(lambda p: _model(p, settings) - measured, start, x_scale=[1, 1, 1, 1, 1, 0.01])
     residual = solution.fun
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    light_level = solution.x[-1]
+    if rms > MAX_RESIDUAL * light_level:
+        raise ValueError(f"no polariscope explains the free-space sweep (residual rms {rms / light_level:.3f} of the "
+                         f"light level, limit {MAX_RESIDUAL}): does a single mount turn the other way (the ELL14 "
+                         "mounted reversed, the camera's 45/135 pixels swapped), or did the light change during the "
+                         "sweep?")
     dof = max(len(residual) - len(start), 1)
     variance = float(residual @ residual) / dof
     covariance = np.linalg.pinv(solution.jac.T @ solution.jac) * variance
     errors = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     parameters = solution.x
-    return Calibration(Optics(**dict(zip(PARAMETERS, (float(x) for x in parameters[:-1])))), float(parameters[-1]),
-                       float(np.sqrt(np.mean(residual ** 2))),
+    return Calibration(_canonical(Optics(**dict(zip(PARAMETERS, (float(x) for x in parameters[:-1]))))),
+                       float(light_level), rms,
                        {name: float(e) for name, e in zip(PARAMETERS, errors[:-1])}, len(exposures),
                        float(mask.mean()))
+
+
+def _canonical(optics):
+    """The form of ``optics`` with offsets within 45 degrees, positive retardances and at most one plate swapped.
+
+    A plate turned by 90 degrees, or with its retardance negated, is the same plate with its axes swapped
+    (up to a phase); both plates swapped look like neither in free space.
+    """
+    values = optics.to_dict()
+    for plate in ("qwp1", "qwp2"):
+        offset = (values[f"{plate}_offset"] + 90.0) % 180.0 - 90.0
+        retardance = (values[f"{plate}_retardance"] + 180.0) % 360.0 - 180.0
+        swapped = values[f"{plate}_swapped"]
+        if abs(offset) > 45.0:
+            offset, swapped = offset - math.copysign(90.0, offset), not swapped
+        if retardance < 0.0:
+            retardance, swapped = -retardance, not swapped
+        values.update({f"{plate}_offset": offset, f"{plate}_retardance": retardance, f"{plate}_swapped": swapped})
+    if values["qwp1_swapped"] and values["qwp2_swapped"]:
+        values["qwp1_swapped"] = values["qwp2_swapped"] = False
+    return Optics(**values)
 
 
 def expected_exposures():

@@ -101,6 +101,23 @@ class Timing:
     qwp1_change: float = 60.0            # the operator turning the manual QWP1
 
 
+# The disk in diametral compression with its load axis 30 degrees counter-clockwise from image up: neither
+# mirror-symmetric nor unchanged by a stress sign flip, and about one fringe at its centre.
+DEFAULT_SPECIMEN_DEFINES = {"load": 150.0, "contact_width": 4.0, "load_direction": "-0.5, 0.8660254, 0"}
+
+
+@dataclass(frozen=True)
+class KnownSpecimen:
+    """The specimen of known stress ``mi-nest calibrate`` checks the rig's handedness on (``[handedness]``):
+    a scene (shipped name or file) and its ``$NAME`` values. The real specimen must be what the scene says:
+    its stress sign, load and orientation in the image are what the check compares against."""
+    scene: str = "disk_compression"
+    defines: dict = field(default_factory=lambda: dict(DEFAULT_SPECIMEN_DEFINES))
+
+    def describe(self):
+        return f"{self.scene} ({', '.join(f'{k}={v}' for k, v in self.defines.items())})"
+
+
 @dataclass(frozen=True)
 class RigConfig:
     devices: Devices
@@ -113,6 +130,7 @@ class RigConfig:
     dolp_threshold: float = 0.95
     calibration: Path | None = None
     source: Path | None = None           # the TOML file, for messages
+    handedness: KnownSpecimen = KnownSpecimen()
 
     def calibrated_optics(self):
         """The optics fitted by ``mi-nest calibrate`` (None when no calibration file is given)."""
@@ -128,7 +146,8 @@ class RigConfig:
         return {"devices": asdict(self.devices), "camera": camera, "schedule": asdict(self.schedule),
                 "timing": asdict(self.timing), "qwp1": {"mode": self.qwp1_mode}, "retries": self.retries,
                 "retry_wait": self.retry_wait, "dolp_threshold": self.dolp_threshold,
-                "calibration": None if self.calibration is None else str(self.calibration)}
+                "calibration": None if self.calibration is None else str(self.calibration),
+                "handedness": asdict(self.handedness)}
 
 
 def load_calibration(path):
@@ -205,7 +224,7 @@ def _genicam_camera(table):
 def parse(data: dict, source=None) -> RigConfig:
     """A :class:`RigConfig` from the TOML document ``data`` (``source``: its path, for relative paths)."""
     _take(data, "top level", required=("devices", "camera"),
-          optional=("schedule", "timing", "qwp1", "acquisition", "calibration"))
+          optional=("schedule", "timing", "qwp1", "acquisition", "calibration", "handedness"))
     devices = _take(data["devices"], "devices", required=("azimuth", "elevation", "qwp2"),
                     optional=("azimuth_channel", "elevation_channel", "qwp2_address"))
     devices = Devices(**devices)
@@ -238,7 +257,18 @@ def parse(data: dict, source=None) -> RigConfig:
             calibration = Path(source).parent / calibration
     return RigConfig(devices, camera, schedule, timing, mode, retries, float(acquisition.get("retry_wait", 2.0)),
                      float(acquisition.get("dolp_threshold", 0.95)), calibration,
-                     None if source is None else Path(source))
+                     None if source is None else Path(source), _known_specimen(data.get("handedness", {})))
+
+
+def _known_specimen(table):
+    """``[handedness]``: without ``scene``, the default disk with ``defines`` overriding its values."""
+    _take(table, "handedness", optional=("scene", "defines"))
+    defines = table.get("defines", {})
+    if not isinstance(defines, dict):
+        raise RigConfigError(f"[handedness.defines] must be a table of the scene's $NAME values, got {defines!r}")
+    if "scene" not in table:
+        return KnownSpecimen(defines={**DEFAULT_SPECIMEN_DEFINES, **defines})
+    return KnownSpecimen(str(table["scene"]), dict(defines))
 
 
 def load(path) -> RigConfig:

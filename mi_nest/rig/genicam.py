@@ -51,6 +51,9 @@ class GenICamBackend:
     def set_qwp1(self, reading):
         """The operator turns the real plate; nothing to do here."""
 
+    def put_in_view(self, specimen):
+        """The operator places the real specimen; nothing to do here."""
+
     def capture(self, frame_number, clock):
         width, height = self.config.camera.resolution
         with self.acquirer.fetch(timeout=max(5.0, 10 * self.config.camera.exposure)) as buffer:

@@ -26,21 +26,37 @@ from ..physics.su2 import identity
 
 @dataclass(frozen=True)
 class Optics:
-    """The polariscope as built: angle offsets (degrees, from the nominal) and waveplate retardances.
+    """The polariscope as built: angle offsets (degrees, from the nominal), waveplate retardances, and
+    the faults of angle sense that free-space captures cannot see (docs/rig.md, "Angle sense and handedness").
 
     ``polarizer`` is the reference of every angle (the light panel's LP1 at
-    90 degrees defines the frame), so it has no offset of its own.
+    90 degrees defines the frame), so it has no offset of its own. Angles turn
+    from image right towards image up (counter-clockwise looking toward the
+    source). ``mirrored``: every mount and the camera turn the other way, so
+    each physical angle is the negative of what the mount reading plus its
+    offset says. ``qwp1_swapped``/``qwp2_swapped``: the plate's mark is on its
+    slow axis, so its fast axis sits 90 degrees from the mark.
     """
     analyzer_offset: float = 0.0     # the camera's micro-polarisers against the image axes
     qwp1_offset: float = 0.0         # QWP1 (manual mount) against its scale
     qwp2_offset: float = 0.0         # QWP2's fast axis against the ELL14's zero
     qwp1_retardance: float = 90.0
     qwp2_retardance: float = 90.0
+    mirrored: bool = False
+    qwp1_swapped: bool = False
+    qwp2_swapped: bool = False
+
+    def __post_init__(self):
+        for name in ("mirrored", "qwp1_swapped", "qwp2_swapped"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
     def polariscope(self, qwp1, qwp2, analyzer, polarizer=90.0):
         """The physical polariscope when the mounts read ``qwp1``, ``qwp2`` and the analyser is ``analyzer``."""
-        return Polariscope(polarizer, qwp1 + self.qwp1_offset, qwp2 + self.qwp2_offset,
-                           analyzer + self.analyzer_offset, self.qwp1_retardance, self.qwp2_retardance)
+        sense = -1.0 if self.mirrored else 1.0
+        return Polariscope(sense * polarizer, sense * (qwp1 + self.qwp1_offset + 90.0 * self.qwp1_swapped),
+                           sense * (qwp2 + self.qwp2_offset + 90.0 * self.qwp2_swapped),
+                           sense * (analyzer + self.analyzer_offset), self.qwp1_retardance, self.qwp2_retardance)
 
     def to_dict(self):
         return asdict(self)
@@ -63,6 +79,11 @@ class SimulatedCamera:
         self.exposures = 0
         self._cached = None
 
+    def show(self, jones_of):
+        """Put another object in view (``jones_of`` as in the constructor)."""
+        self.jones_of = jones_of
+        self._cached = None
+
     def _jones(self, azimuth, elevation):
         key = (round(azimuth, 6), round(elevation, 6))
         if self._cached is None or self._cached[0] != key:
@@ -73,15 +94,19 @@ class SimulatedCamera:
         """``{analyser: (H, W) float32}`` normalised intensities of one exposure at the rig's true state."""
         azimuth, elevation, qwp2 = self.rig_state()
         q, factor = self._jones(azimuth, elevation)
-        width, height = self.resolution
-        images = {}
-        for analyzer in ANALYSERS:
-            intensity = self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q)
-            intensity = np.broadcast_to(intensity, (height * factor, width * factor))
-            images[f"analyzer.{analyzer}"] = intensity.reshape(height, factor, width, factor).mean(axis=(1, 3))
+        images = {f"analyzer.{analyzer}": pixel_means(self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q),
+                                                      factor, self.resolution)
+                  for analyzer in ANALYSERS}
         captured = self.camera.capture(images, self.exposures)
         self.exposures += 1
         return {int(name.split(".")[1]): image for name, image in captured.items()}
+
+
+def pixel_means(samples, factor, resolution):
+    """``(H, W)`` means of ``factor`` x ``factor`` point samples per pixel (a scalar: the same everywhere)."""
+    width, height = resolution
+    samples = np.broadcast_to(samples, (height * factor, width * factor))
+    return samples.reshape(height, factor, width, factor).mean(axis=(1, 3))
 
 
 def free_space(azimuth, elevation):
