@@ -8,6 +8,7 @@ import warnings
 from pathlib import Path
 
 from . import interrupts
+from .reconstruct import DivergenceError
 from .rig.errors import RigError
 
 DEFAULT_SCENE = "disk_compression"
@@ -467,7 +468,7 @@ def _run(args):
                 print(path.stem)
     except KeyboardInterrupt as interrupt:
         return _interrupted(args.command, interrupt)
-    except (ValueError, OSError, RigError) as error:
+    except (ValueError, OSError, RigError, DivergenceError) as error:
         if interrupts.received():
             return _interrupted(args.command)
         print(f"mi-nest: error: {error}", file=sys.stderr)

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .arguments import whole_number
 from .io.grid import StressGrid, grid_nodes
 from .io.vtk import write_grid_vtu
 
@@ -16,6 +17,8 @@ def specimen_grids(scene, resolution=64):
     it (analytic models included); nodes outside the shape carry the field's value
     there, which the renderer never uses.
     """
+    # Two nodes per axis at least: one would be a grid of zero spacing, written as a single cell.
+    resolution = whole_number("resolution", resolution, minimum=2)
     grids = []
     for shape in scene.shapes():
         medium = shape.interior_medium()
@@ -23,7 +26,7 @@ def specimen_grids(scene, resolution=64):
             continue
         box = shape.bbox()
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
-        spacing = (hi - lo).max() / (int(resolution) - 1)
+        spacing = (hi - lo).max() / (resolution - 1)
         counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
         values = medium.sample(grid_nodes(lo, hi, counts))
         grids.append(StressGrid(values.reshape(counts[2], counts[1], counts[0], 6), lo, hi))

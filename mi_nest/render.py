@@ -10,6 +10,7 @@ from importlib import resources
 from pathlib import Path
 
 import mitsuba as mi
+import numpy as np
 
 from . import __version__, interrupts
 from .arguments import whole_number
@@ -40,14 +41,64 @@ def scene_file(path) -> Path:
 
 
 def load_scene(path, **defaults):
-    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults."""
+    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults.
+
+    Embree's robust intersections are switched on whatever the file says (a
+    flag in an included file is lost, too): without them a ray through a mesh
+    edge can miss both triangles, which the walk only mends by querying again.
+    The scene's id is its file, so that messages can name it.
+    """
     path = scene_file(path)
     try:
-        # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
-        # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.
-        return mi.load_file(str(path), parallel=False, **{k: str(v) for k, v in defaults.items()})
+        scene = _load_robust(path, {k: str(v) for k, v in defaults.items()})
     except Exception as error:
         raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
+    if not scene.id():
+        scene.set_id(str(path))
+    return scene
+
+
+def _load_robust(path, defaults):
+    """``mi.load_file`` with the scene's ``embree_use_robust_intersections`` set."""
+    config = mi.parser.ParserConfig(mi.variant())
+    # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
+    # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.
+    config.parallel = False
+    previous = mi.file_resolver()
+    resolver = mi.FileResolver(previous)
+    resolver.prepend(str(path.parent))     # relative file names resolve beside the scene, as mi.load_file does
+    mi.set_file_resolver(resolver)
+    try:
+        state = mi.parser.parse_file(config, str(path), **defaults)
+        if state.root.type == mi.ObjectType.Scene:
+            state.root.props["embree_use_robust_intersections"] = True
+        mi.parser.transform_all(config, state)
+        return mi.parser.instantiate(config, state)
+    finally:
+        mi.set_file_resolver(previous)
+
+
+def _check_image(scene, image, names, passes):
+    """Refuse an image with NaN or inf pixels, naming the likely cause; warn when no pixel sees a specimen.
+
+    ``image`` (H, W, C) is the sum of ``passes`` passes, its channels named by ``names``.
+    """
+    name = scene.id() or "the scene"
+    length = image[..., names.index("path.length")]
+    bad = ~np.isfinite(image)
+    if bad.any():
+        order = image[..., names.index("fringe.order")]
+        finite = np.isfinite(order)
+        extent = (f"fringe orders reach {order[finite].max() / passes:.3g} (real parts show a few hundred at most)"
+                  if finite.any() else "the fringe order overflows")
+        channels = [n for n, b in zip(names, bad.any(axis=(0, 1))) if b]
+        raise SceneError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf (in "
+                         f"{', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}): the stress field is NaN "
+                         f"there, or so large that {extent}; check its magnitude and units (MPa)")
+    if not (length > 0).any():
+        warnings.warn(f"{name}: the camera sees no specimen (path.length is 0 in every pixel), so the image is the "
+                      "empty polariscope's; check the camera pose (origin, target, to_world) and the specimen's "
+                      "position, size and units (mm)", RuntimeWarning, stacklevel=3)
 
 
 def _without_traceback(message):
@@ -109,6 +160,8 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
                 raise
             total = image if total is None else total + image
             bar.update()
+    # Before the integrator's warnings are repeated: an image refused for NaN pixels needs no warning about them.
+    _check_image(scene, total, integrator.channel_names(film), passes)
     last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
     for w in last_of_kind.values():
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)

@@ -16,6 +16,8 @@ from mi_nest.physics import steps as steps_analysis
 METHODS = ("product", "linear", "magnus4", "rk4", "auto")
 # Where ``product`` samples each step: its midpoint (second order) or its start (first order).
 POINTS = {"midpoint": 0.5, "left": 0.0}
+# Queries again, each from a little further on, for a crossing that a ray inside a specimen did not find (walk).
+EXTRA_LOOKS = 2
 # Most steps a ray may take across the specimens. Beyond it float32 rounding of the steps outweighs their
 # error (the disk at 6e7 steps: 10% off in retardance; at 1e-9 mm the step count overflows to none) and a
 # view takes minutes.
@@ -379,6 +381,16 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         Returns ``(carry, blocked, length)``: whether an opaque shape stops the ray,
         and its length inside specimens. The primal pass and the adjoint replay
         differ only in ``carry`` and ``segment``.
+
+        Inside a specimen the next crossing must be its exit (or a glued
+        neighbour's face, or an opaque shape), and an exit must follow an entry
+        (or another specimen's exit: faces glued, the coincident entry skipped).
+        Where they do not, Embree missed a face where the ray met a mesh edge (it
+        does without robust intersections, whatever flags the scene was loaded
+        with) or the ray grazed a silhouette: the query is made again from a
+        point nudged by a surface clearance (``occupancy.nudged``), not flagged
+        coherent (coherent queries round alike), up to :data:`EXTRA_LOOKS`
+        times. What is still there was a touch, and marches nothing.
         """
         d = mi.Vector3f(ray.d)
         coefficients = setup.projection_coefficients(d)
@@ -386,6 +398,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         launch = mi.Point3f(ray.o)      # where the next intersection query starts
         reach = mi.Float(ray.maxt)      # and how far it looks: the camera's range, then unbounded
         medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
+        current = mi.UInt32(0)          # the specimen shape the ray is in (0 outside)
+        after_exit = mi.Bool(False)     # whether the last crossing left a specimen
+        looks = mi.UInt32(0)            # queries again for the same crossing
         blocked = mi.Bool(False)
         length = mi.Float(0)
         crossings = mi.UInt32(0)
@@ -394,29 +409,37 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
         while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment, self, setup]):
             si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
-                                     ray_flags=mi.RayFlags.Minimal, coherent=setup.coherent_rays, active=active)
+                                     ray_flags=mi.RayFlags.Minimal, coherent=setup.coherent_rays & (looks == 0),
+                                     active=active)
             hit = si.is_valid()
-            hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape,
-                                   dr.reinterpret_array(mi.UInt32, si.shape), hit)
+            shape = dr.reinterpret_array(mi.UInt32, si.shape)
+            hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
             entering = dr.dot(si.n, d) < 0
+            exiting = hit & ~entering & (hit_medium != 0)
+            unexpected = dr.select(medium != 0, ~hit | (entering & (shape == current)), exiting & ~after_exit)
+            look_again = active & unexpected & (looks < EXTRA_LOOKS)
             # Leaving a specimen proves the segment was inside it, even if its entry face was
             # skipped for coinciding with the face just left (specimens glued face to face).
-            inside = dr.select(hit & ~entering & (hit_medium != 0), hit_medium, medium)
+            inside = dr.select(exiting, hit_medium, medium)
             # The chord between hit points, not the spawned ray's t (its origin is offset).
             chord = dr.norm(si.p - origin)
-            marched = active & hit & (inside != 0)
+            marched = active & hit & (inside != 0) & ~unexpected
             steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / self._step), 1), 0))
             h = chord / mi.Float(dr.maximum(steps, 1))
             segment_seed = mi.sample_tea_32(seeds, crossings)[0]
             carry = segment(carry, _Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
             length += dr.select(marched, chord, 0.0)
-            blocked |= hit & (hit_medium == 0)
-            medium = dr.select(entering, hit_medium, 0)
-            origin = mi.Point3f(si.p)
-            launch = occupancy.past_surface(si, d)
-            reach = mi.Float(dr.inf)
+            crossed = ~look_again
+            blocked |= crossed & hit & (hit_medium == 0)
+            medium = dr.select(crossed, dr.select(entering, hit_medium, 0), medium)
+            current = dr.select(crossed, dr.select(entering & (hit_medium != 0), shape, 0), current)
+            after_exit = dr.select(crossed, exiting & ~unexpected, after_exit)
+            origin = dr.select(crossed, si.p, origin)
+            launch = dr.select(crossed, occupancy.past_surface(si, d), occupancy.nudged(launch, d, looks))
+            reach = dr.select(crossed, dr.inf, reach)
+            looks = dr.select(crossed, 0, looks + 1)
             crossings += 1
-            active &= hit & ~blocked & (crossings < self.max_crossings)
+            active &= (hit | look_again) & ~blocked & (crossings < self.max_crossings)
         return carry, blocked, length
 
     def _primal_carry(self):

@@ -9,6 +9,7 @@ import pytest
 from mi_nest.cli import main
 from mi_nest.dataset import CameraModel, Dataset, DatasetError, SimulationSettings, pose, simulate
 from mi_nest.dataset.camera import MOSAIC, mosaic_mask
+from mi_nest.dataset.format import rotation_header
 from mi_nest.dataset.masks import agreement, linear_settings, min_dolp
 from mi_nest.dataset.simulate import reference_pose
 from mi_nest.dataset.schedule import Rotation, angles, camera_to_world, rotation_grid
@@ -178,10 +179,10 @@ def _bytes_held(view):
 
 @pytest.mark.parametrize("views_held", [None, 3])
 def test_views_are_decoded_once_while_the_cache_holds_them(disk_dataset, monkeypatch, views_held):
-    from mi_nest.dataset import loader
+    from mi_nest.dataset import format as dataset_format     # where rotation files are read
     decoded = []
-    read = loader.read_channels
-    monkeypatch.setattr(loader, "read_channels", lambda path: decoded.append(path) or read(path))
+    read = dataset_format.read_channels
+    monkeypatch.setattr(dataset_format, "read_channels", lambda path: decoded.append(path) or read(path))
     dataset = Dataset(disk_dataset[0])
     if views_held is not None:
         for p in dataset.split("train"):
@@ -220,7 +221,9 @@ def test_bad_input_is_reported_clearly(tmp_path, disk_dataset):
     (copy / "rotations/0003.exr").unlink()
     with pytest.raises(DatasetError, match="missing.*0003.exr"):
         Dataset(copy)
-    write_channels(copy / "rotations/0003.exr", {n: np.zeros((16, 16)) for n in MEASUREMENTS})
+    index = json.loads((copy / "dataset.json").read_text())
+    write_channels(copy / "rotations/0003.exr", {n: np.zeros((16, 16)) for n in MEASUREMENTS},
+                   metadata=rotation_header(index["rotations"][3], index))    # rotation 3's, at another size
     with pytest.raises(DatasetError, match="16, 16"):
         Dataset(copy).view(3)
     with pytest.raises(DatasetError, match="other settings"):

@@ -7,12 +7,14 @@ measurements) and, for simulations, ``mask.occupancy`` (exact).
 """
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
 
 from ..io.atomic import atomic_path
+from ..io.exr import ExrFileError, read_channels, read_metadata
 from ..physics import MEASUREMENTS
 
 FORMAT = "mi_nest.dataset"
@@ -78,3 +80,102 @@ def read_index(directory) -> dict:
         if not {"index", "azimuth", "elevation", "file", "split", "to_world"} <= set(rotation):
             raise DatasetError(f"{path}: corrupt rotation entry {rotation}")
     return index
+
+
+# Header keys of a rotation file that tie it to its entry in dataset.json.
+ROTATION_KEY, AZIMUTH_KEY, ELEVATION_KEY = "mi_nest.rotation", "mi_nest.azimuth", "mi_nest.elevation"
+POSE_KEY, SETTINGS_KEY = "mi_nest.to_world", "mi_nest.settings"
+# Largest difference (degrees, pose matrix entries) between a header and dataset.json that is rounding.
+HEADER_TOLERANCE = 1e-6
+
+
+def settings_fingerprint(index):
+    """A short hash of what every rotation file of a dataset shares: camera, sampling, polariscope, source."""
+    source = index.get("source") or {}
+    shared = {key: index.get(key) for key in ("resolution", "spp", "camera_model", "polariscope")}
+    shared["source"] = {key: source.get(key) for key in ("kind", "scene", "defines")}
+    return hashlib.sha256(json.dumps(shared, sort_keys=True, default=plain).encode()).hexdigest()[:16]
+
+
+def rotation_header(entry, index):
+    """The header attributes that name a rotation file's rotation, pose and dataset settings."""
+    return {ROTATION_KEY: entry["index"], AZIMUTH_KEY: entry["azimuth"], ELEVATION_KEY: entry["elevation"],
+            POSE_KEY: json.dumps(entry["to_world"], default=plain), SETTINGS_KEY: settings_fingerprint(index)}
+
+
+def header_mismatch(header, entry, index):
+    """What in a rotation file's ``header`` contradicts its ``entry`` in dataset.json; None if nothing does.
+
+    The rotation index is required (every mi_nest rotation file has it); pose and settings are compared
+    where the file records them (files of older captures do not).
+    """
+    if ROTATION_KEY not in header:
+        return "its header names no rotation (not written by mi_nest?)"
+    if header[ROTATION_KEY] != str(entry["index"]):
+        return f"its header says rotation {header[ROTATION_KEY]}, dataset.json lists it as rotation {entry['index']}"
+    for key, name in ((AZIMUTH_KEY, "azimuth"), (ELEVATION_KEY, "elevation")):
+        if key in header and not abs(float(header[key]) - entry[name]) <= HEADER_TOLERANCE:
+            return f"its header says {name} {header[key]} deg, dataset.json {entry[name]} deg"
+    if POSE_KEY in header and not np.allclose(json.loads(header[POSE_KEY]), entry["to_world"], rtol=0,
+                                              atol=HEADER_TOLERANCE):
+        return "its camera pose (to_world) differs from dataset.json's"
+    if SETTINGS_KEY in header and header[SETTINGS_KEY] != settings_fingerprint(index):
+        return "it was made with other settings (camera, resolution, spp, polariscope or scene) than dataset.json's"
+    return None
+
+
+def read_rotation(directory, entry, index):
+    """``{name: (H, W)}`` of one rotation file, read whole and checked against its entry in dataset.json.
+
+    Raises :class:`DatasetError` when the file cannot be read (a write cut short leaves a truncated file)
+    or belongs to another rotation or dataset.
+    """
+    path = Path(directory) / entry["file"]
+    try:
+        images = read_channels(path)
+        header = read_metadata(path)
+    except ExrFileError as error:
+        raise DatasetError(f"rotation {entry['index']}: {error}") from error
+    problem = header_mismatch(header, entry, index)
+    if problem is not None:
+        raise DatasetError(f"{path}: {problem}; the file belongs to another rotation or dataset (swapped or "
+                           "copied?): put the right file back, or simulate or acquire the dataset again")
+    return images
+
+
+def rotation_is_whole(directory, entry, index):
+    """Whether ``entry``'s rotation file is on disk, readable to its end and its own: a rerun keeps it."""
+    try:
+        read_rotation(directory, entry, index)
+    except DatasetError:
+        return False
+    return True
+
+
+# A view counts as saturated when more than this share of its specimen's measurements sit at full scale.
+SATURATED_SHARE = 0.05
+# Full scale of the raw Mono12 frames a captured dataset's camera delivers (rig/genicam.py), in counts.
+MONO12_FULL_SCALE = 4095
+
+
+def full_scale(index):
+    """The normalised intensity the dataset's camera clips at; None when it does not clip (float renders)."""
+    camera = index.get("camera_model") or {}
+    if "white_level" in camera:
+        return MONO12_FULL_SCALE / camera["white_level"]
+    if camera.get("bits") is not None:
+        return camera.get("saturation", 1.0)
+    return None
+
+
+def check_measurements(measured, channels, where):
+    """Raise :class:`DatasetError` for NaN or inf in ``measured`` (H, W, C), or a view where all are zero."""
+    finite = np.isfinite(measured)
+    if not finite.all():
+        counts = (~finite).sum(axis=(0, 1))
+        listing = ", ".join(f"{name} ({count} pixels)" for name, count in zip(channels, counts) if count)
+        raise DatasetError(f"{where}: NaN or inf in channel(s) {listing}; a broken capture or export: "
+                           "capture or simulate this rotation again")
+    if not measured.any():
+        raise DatasetError(f"{where}: every measurement is zero (no light reached the camera: shutter, "
+                           "exposure or light source?); capture this rotation again")

@@ -7,19 +7,22 @@ Training draws random rays across rotations; evaluation reads whole views.
 """
 from __future__ import annotations
 
+import warnings
 from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from ..io.exr import ExrFileError, read_channels
 from ..physics import MEASUREMENTS
 from . import format as fmt
 
 
 # Memory the decoded views may hold, by default.
 CACHE_BYTES = 1 << 30
+# Relative distance below full scale that still reads as full scale: half-float rotation files round
+# values within 2^-11 of 1 to 1.
+FULL_SCALE_ROUNDING = 1e-3
 
 
 class _DecodedView:
@@ -111,10 +114,7 @@ class Dataset:
             self._cache.move_to_end(position)
             return self._cache[position]
         entry = self.rotations[position]
-        try:
-            decoded = read_channels(self.directory / entry["file"])
-        except ExrFileError as error:
-            raise fmt.DatasetError(f"rotation {entry['index']}: {error}") from error
+        decoded = fmt.read_rotation(self.directory, entry, self.index)
         height_width = (self.resolution[1], self.resolution[0])
         shapes = {a.shape for a in decoded.values()}
         if shapes != {height_width}:
@@ -124,6 +124,7 @@ class Dataset:
         if missing:
             raise fmt.DatasetError(f"{entry['file']}: missing channel(s) {missing}")
         view = _DecodedView(decoded, self.channels)
+        fmt.check_measurements(view.measured, self.channels, self.directory / entry["file"])
         self._cache[position] = view
         self._keep_within_budget()
         return view
@@ -141,6 +142,24 @@ class Dataset:
         cached_bytes = sum(v.nbytes for v in self._cache.values())
         while cached_bytes > self._cache_bytes and len(self._cache) > 1:
             cached_bytes -= self._cache.popitem(last=False)[1].nbytes
+
+    def check_measurements(self, mask="mask.dolp"):
+        """Decode every view, so that NaN, inf or all-zero measurements raise :class:`DatasetError` now,
+        and warn once about views whose specimen (``mask``) is saturated."""
+        level = fmt.full_scale(self.index)
+        saturated = []
+        for position in range(len(self)):
+            view, pixels = self._pixels_inside(position, mask if mask in self._decoded(position).images else None)
+            values = view.measured.reshape(-1, len(self.channels))[pixels]
+            if level is not None and values.size and \
+                    np.mean(values >= level * (1 - FULL_SCALE_ROUNDING)) > fmt.SATURATED_SHARE:
+                saturated.append(self.rotations[position]["index"])
+        if saturated:
+            warnings.warn(f"{self.directory}: in {len(saturated)} of {len(self)} views (rotations "
+                          f"{', '.join(map(str, saturated[:8]))}{', ...' if len(saturated) > 8 else ''}) more than "
+                          f"{100 * fmt.SATURATED_SHARE:g}% of the specimen's measurements sit at the camera's full "
+                          f"scale ({level:.4g}): clipped intensities bias the fit there; capture with less exposure "
+                          "or light (or a higher white_level)", RuntimeWarning, stacklevel=2)
 
     def measurements(self, position):
         """``(H, W, 16)`` in the order of ``channels`` (the cached array: do not modify it)."""

@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import __version__
 from ..arguments import whole_number
-from ..io.exr import ExrFileError, read_channels, read_metadata, write_channels
+from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..render import SceneError, load_scene, render, render_plan
@@ -175,7 +175,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends
         warnings.simplefilter("always")
         for entry in index["rotations"]:
-            rendered_now = _rotation(scene, output, entry, settings)
+            rendered_now = _rotation(scene, output, entry, index, settings)
             rendered += rendered_now is not None
             kept += rendered_now is None
             if rendered_now is not None:
@@ -198,16 +198,16 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
                             [str(w.message) for w in caught])
 
 
-def _rotation(scene, output, entry, settings):
+def _rotation(scene, output, entry, index, settings):
     """Render and write one rotation unless it is on disk: ``(render s, write s)`` or None if kept."""
     path = output / entry["file"]
-    if _is_complete(path):
+    if fmt.rotation_is_whole(output, entry, index):
         return None
     start = time.perf_counter()
     pose(scene, entry["to_world"])
     result = render(scene, spp=settings.spp)
     middle = time.perf_counter()
-    _write_rotation(path, result.channels, entry, settings, scene.integrator().aliasing)
+    _write_rotation(path, result.channels, entry, index, settings, scene.integrator().aliasing)
     return middle - start, time.perf_counter() - middle
 
 
@@ -231,24 +231,12 @@ def json_round_trip(value):
     return json.loads(json.dumps(value, default=fmt.plain))
 
 
-def _is_complete(path):
-    """Files appear only whole (atomic rename); one that cannot be read is rendered again."""
-    if not path.is_file():
-        return False
-    try:
-        read_channels(path, list(fmt.CHANNELS[:1]))
-        return True
-    except ExrFileError:
-        return False
-
-
-def _write_rotation(path, rendered, entry, settings, aliasing=None):
+def _write_rotation(path, rendered, entry, index, settings, aliasing=None):
     measured = settings.camera.capture({name: rendered[name] for name in fmt.CHANNELS}, entry["index"])
     channels = dict(measured)
     channels["mask.dolp"] = dolp_mask(measured, settings.dolp_threshold).astype(np.float32)
     channels["mask.occupancy"] = (rendered["path.length"] > 0).astype(np.float32)
-    metadata = {"mi_nest.rotation": entry["index"], "mi_nest.azimuth": entry["azimuth"],
-                "mi_nest.elevation": entry["elevation"]}
+    metadata = fmt.rotation_header(entry, index)
     if aliasing is not None:
         metadata.update({ALIASED_KEY: f"{aliasing.fraction:.6g}", DENSEST_KEY: f"{aliasing.densest:.6g}"})
     write_channels(path, channels, half=settings.half, metadata=metadata)

@@ -285,20 +285,25 @@ _MODE_NAMES = ("translation along x", "translation along y", "translation along 
                "rotation about x", "rotation about y", "rotation about z")
 
 
-def rigid_body_modes(basis):
+def rigid_body_modes(basis, scalar_dofs=None):
     """(3 N, 6) rigid-body displacements at the vector dofs of the scalar ``basis``.
 
     Three translations and three rotations about the centroid.
 
     Rotations are divided by the mesh size so all six columns are O(1); they
     span the null space of the unconstrained stiffness matrix (and are the
-    near-null space AMG needs to coarsen elasticity well).
+    near-null space AMG needs to coarsen elasticity well). With ``scalar_dofs``,
+    the (3 len, 6) motions of those dofs alone (one body), about their centroid.
     """
-    count = 3 * basis.N
-    locations = np.repeat(basis.doflocs.T, 3, axis=0)         # vector dof 3 d + c sits at scalar dof d
+    if scalar_dofs is None:
+        points, dof_points = basis.mesh.p, basis.doflocs
+    else:
+        points = dof_points = basis.doflocs[:, scalar_dofs]
+    count = 3 * dof_points.shape[1]
+    locations = np.repeat(dof_points.T, 3, axis=0)            # vector dof 3 d + c sits at scalar dof d
     component = np.arange(count) % 3
-    centre = basis.mesh.p.mean(axis=1)
-    scale = np.ptp(basis.mesh.p, axis=1).max()
+    centre = points.mean(axis=1)
+    scale = np.ptp(points, axis=1).max()
     relative = (locations - centre) / scale
     modes = np.zeros((count, 6))
     modes[np.arange(count), component] = 1.0
@@ -308,23 +313,49 @@ def rigid_body_modes(basis):
     return modes
 
 
-def check_rigid_modes(basis, constraints, fixtures):
-    """Raise :class:`FemError` if the constrained dofs leave a rigid-body motion free.
+def bodies(mesh):
+    """Element indices of each connected body of ``mesh`` (tetrahedra sharing a vertex are one body)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    t = mesh.t
+    links = sp.coo_matrix((np.ones(3 * t.shape[1]), (np.tile(t[0], 3), t[1:].ravel())),
+                          shape=(mesh.nvertices, mesh.nvertices))
+    _, vertex_body = connected_components(links, directed=False)
+    element_body = vertex_body[t[0]]
+    return [np.flatnonzero(element_body == body) for body in np.unique(element_body)]
 
-    A rigid motion ``m = modes @ c`` is free when it moves no constrained dof,
-    i.e. ``c`` is a null vector of ``modes[D]`` -- an eigenvector of the 6 x 6
-    Gram matrix ``modes[D]^T modes[D]`` with eigenvalue zero.
+
+def check_rigid_modes(basis, constraints, fixtures):
+    """Raise :class:`FemError` if the constrained dofs leave a rigid-body motion of any body free.
+
+    A rigid motion ``m = modes @ c`` of a body is free when it moves none of
+    its constrained dofs, i.e. ``c`` is a null vector of ``modes[D]`` -- an
+    eigenvector of the 6 x 6 Gram matrix ``modes[D]^T modes[D]`` with
+    eigenvalue zero. Each connected body is checked on its own: a second body
+    that nothing holds floats whatever holds the first.
     """
-    modes = rigid_body_modes(basis)[constraints.dofs]
-    eigenvalues, eigenvectors = np.linalg.eigh(modes.T @ modes)
-    free = eigenvectors[:, eigenvalues <= 1e-10 * max(1.0, eigenvalues.max())].T   # columns are O(1)
-    if len(free) == 0:
-        return
-    # Name the pure motions that lie (mostly) in the free subspace.
-    share = np.linalg.norm(free, axis=0)
-    named = [_MODE_NAMES[i] for i in range(6) if share[i] > 0.7]
-    listing = ", ".join(named) if named else "combinations of translations and rotations"
-    names = ", ".join(f"'{f.name}'" for f in fixtures)
-    raise FemError(f"the fixtures ({names}) leave {len(free)} rigid-body motion(s) free ({listing}); "
-                   f"the model can move without straining. Fix more displacement components, e.g. "
-                   f"roller supports at points away from the existing ones")
+    constrained = np.zeros(3 * basis.N, dtype=bool)
+    constrained[constraints.dofs] = True
+    pieces = bodies(basis.mesh)
+    for number, elements in enumerate(pieces, 1):
+        scalar_dofs = np.unique(basis.element_dofs[:, elements])
+        held = constrained[(3 * scalar_dofs[:, None] + np.arange(3)).ravel()]
+        modes = rigid_body_modes(basis, scalar_dofs)[held]
+        eigenvalues, eigenvectors = np.linalg.eigh(modes.T @ modes)
+        free = eigenvectors[:, eigenvalues <= 1e-10 * max(1.0, eigenvalues.max())].T   # columns are O(1)
+        if len(free) == 0:
+            continue
+        # Name the pure motions that lie (mostly) in the free subspace.
+        share = np.linalg.norm(free, axis=0)
+        named = [_MODE_NAMES[i] for i in range(6) if share[i] > 0.7]
+        listing = ", ".join(named) if named else "combinations of translations and rotations"
+        names = ", ".join(f"'{f.name}'" for f in fixtures)
+        body = ""
+        if len(pieces) > 1:
+            corners = basis.mesh.p[:, np.unique(basis.mesh.t[:, elements])]
+            body = (f" of body {number} of the mesh's {len(pieces)} disconnected bodies (from "
+                    f"{format_point(corners.min(axis=1))} to {format_point(corners.max(axis=1))} mm; each "
+                    f"body needs fixtures of its own)")
+        raise FemError(f"the fixtures ({names}) leave {len(free)} rigid-body motion(s){body} free ({listing}); "
+                       f"the model can move without straining. Fix more displacement components, e.g. "
+                       f"roller supports at points away from the existing ones")

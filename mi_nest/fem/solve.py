@@ -312,6 +312,11 @@ def solve(mesh, material, loads, fixtures, element_order=1, solver=SolverConfig(
                        f"{iterations} iterations (tolerance {solver.tolerance:g}); a mesh in several "
                        f"pieces (each needs its own fixtures) does this, otherwise raise max_iterations or "
                        f"use method = 'direct' for small models")
+    if method == "direct" and residual > 10 * solver.tolerance:
+        raise FemError(f"the sparse LU solution does not solve the system: relative residual {residual:.2e} "
+                       f"(tolerance {solver.tolerance:g}): the stiffness matrix is singular, so the model moves "
+                       f"without straining somewhere; parts of the mesh joined only at a node or an edge turn "
+                       f"about it, so join them through faces, or fix each part")
 
     clock = time.perf_counter()
     reaction = K @ u - f

@@ -47,7 +47,7 @@ class TetMeshStress:
     def from_cells(cls, nodes, cells, stress, boundary=None):
         """Build from tetrahedra (M, 4) or hexahedra (M, 8), validating everything."""
         nodes = np.asarray(nodes, dtype=np.float64)
-        cells = np.asarray(cells, dtype=np.int64)
+        cells = _node_indices(cells)
         stress = np.asarray(stress, dtype=np.float32)
         if nodes.ndim != 2 or nodes.shape[1] != 3 or len(nodes) < 4:
             raise MeshError(f"nodes must have shape (N >= 4, 3), got {nodes.shape}")
@@ -175,6 +175,21 @@ def nodal_average(nodes, cells, cell_values):
         np.add.at(weighted, corner, volume[:, None] * cell_values)
         np.add.at(weight, corner, volume)
     return weighted / np.maximum(weight, np.finfo(float).tiny)[:, None]
+
+
+def _node_indices(cells):
+    """``cells`` as int64 node indices. Floats must hold whole numbers: cast, 3.7 would become node 3."""
+    cells = np.asarray(cells)
+    if cells.dtype.kind in "iu":
+        return cells.astype(np.int64)
+    if cells.dtype.kind != "f":
+        raise MeshError(f"cell node indices must be integers, got {cells.dtype} values")
+    fractional = ~(np.isfinite(cells) & (cells == np.round(cells)))
+    if np.any(fractional):
+        cell = int(np.argwhere(fractional)[0][0])
+        raise MeshError(f"cell node indices must be whole numbers, got {cells[cell].tolist()} in cell {cell}; "
+                        "store the cells as integers")
+    return cells.astype(np.int64)
 
 
 def _as_tets(cells):

@@ -27,6 +27,7 @@ from .. import interrupts
 from ..arguments import whole_number
 from ..dataset import Dataset
 from ..dataset.simulate import specimen_bounds, specimen_media, specimen_shapes
+from ..fields.base import sample
 from ..io.atomic import atomic_path
 from ..io.lock import locked_directory
 from ..physics import MEASUREMENTS
@@ -46,6 +47,12 @@ CHECKPOINT = "checkpoint.npz"
 COARSEST_GRID = 8
 # A gradient this many times the median of the recent ones counts as exploding.
 EXPLODING_FACTOR = 1e4
+# A field beyond this many stress scales (each about one fringe across the specimen) per pixel across the
+# dataset's images has run away: 40 times the Nyquist limit, no image could tell its phase. The true fields
+# of the shipped scenes stay below 3 per pixel at any resolution their datasets use.
+RUNAWAY_ORDERS_PER_PIXEL = 20
+# Points per axis of the lattice inside the specimen where the field's magnitude is checked.
+MAGNITUDE_POINTS = 16
 # A grid regulariser that met the issue's targets on the disk and the kitten alike (docs/reconstruction.md):
 # weight and edge are in stress scales per box width, so they do not depend on a specimen's size or sensitivity.
 # The smoothness keeps the coarse stages off wrapped and flipped minima, its edge spares stress concentrations
@@ -272,6 +279,7 @@ def optimize(scene, dataset, *, output=None, resume=True, progress=True, truth="
     media = specimen_media(scene)
     _check_material(media, dataset)
     _warn_if_aliased(dataset)
+    dataset.check_measurements(config.mask)
     truth_field = media[0].field if truth == "scene" else truth
     if truth == "scene" and len({id(m.field) for m in media}) > 1:
         truth_field = None
@@ -354,6 +362,7 @@ class _Run:
         self.error_probe = None
         self.polariscopes = dataset.polariscopes()
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
+        self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -563,6 +572,25 @@ class _Run:
         if reason is None:
             self.gradient_norms.append(norm)
             return
+        self._diverged(reason)
+
+    def _require_sane_field(self):
+        """Raise :class:`DivergenceError` if the field holds NaN or inf, or has run away to stresses that
+        no image of the dataset could resolve (:data:`RUNAWAY_ORDERS_PER_PIXEL`): the intensity loss is
+        bounded, so a fit that flies off (a learning rate far too high) does not show in it."""
+        if not all(np.isfinite(np.array(value)).all() for value in self.field.parameters().values()):
+            self._diverged("the field's parameters hold NaN or inf")
+        if self.magnitude_points is None:
+            self.magnitude_points = metrics.evaluation_points(self.scene, specimen_shapes(self.scene),
+                                                              MAGNITUDE_POINTS)
+        largest = float(np.abs(sample(self.field, self.magnitude_points)).max(initial=0.0)) / self.field.stress_scale
+        limit = RUNAWAY_ORDERS_PER_PIXEL * max(self.dataset.resolution)
+        if not largest <= limit:
+            self._diverged(f"the field ran away to {largest:.3g} stress scales (a scale, {self.field.stress_scale:.3g} "
+                           f"MPa, gives about one fringe across the specimen), beyond the {limit:g} that "
+                           f"{max(self.dataset.resolution)}-pixel images could ever resolve")
+
+    def _diverged(self, reason):
         kept = "no checkpoint was written yet"
         if self.last_good is not None:
             kept = f"the last good checkpoint (iteration {self.last_good}) is kept"
@@ -572,6 +600,7 @@ class _Run:
                               "learning_rate or the step_size")
 
     def checkpoint(self):
+        self._require_sane_field()      # a checkpoint is a good state to come back to
         self.last_good = self.iteration
         if self.output is None:
             return
@@ -622,6 +651,7 @@ class _Run:
         """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
         if self.iterates_averaged:
             self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
+        self._require_sane_field()
         return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
 
 

@@ -521,7 +521,7 @@ class _Acquisition:
 
     def _assemble(self, rotation, done):
         """Pose the rotation from the mean of the stage angles measured at its four frames, and write its EXR
-        unless an earlier run did (files appear whole: they are renamed into place)."""
+        unless an earlier run wrote it whole (a crash can leave a renamed file cut short: it is written again)."""
         records = [done[k] for k in self._keys(rotation)]
         azimuth = float(np.mean([r["azimuth"] for r in records]))
         elevation = float(np.mean([r["elevation"] for r in records]))
@@ -531,7 +531,7 @@ class _Acquisition:
                                               Rotation(rotation.index, azimuth, elevation, rotation.split),
                                               self.index["specimen_center"]).round(9).tolist(),
                      measured={name: [r[name] for r in records] for name in ("azimuth", "elevation", "qwp2_measured")})
-        if not (self.output / entry["file"]).is_file():
+        if not fmt.rotation_is_whole(self.output, entry, self.index):
             channels = {}
             for record in records:
                 images = _read_frame(self.output / record["file"])
@@ -539,8 +539,7 @@ class _Acquisition:
                     channels[measurement_name(record["qwp1"], record["qwp2"], analyser)] = images[analyser]
             channels["mask.dolp"] = dolp_mask(channels, self.config.dolp_threshold).astype(np.float32)
             write_channels(self.output / entry["file"], channels, half=True,
-                           metadata={"mi_nest.rotation": rotation.index, "mi_nest.azimuth": azimuth,
-                                     "mi_nest.elevation": elevation, "mi_nest.source": "captured"})
+                           metadata={**fmt.rotation_header(entry, self.index), "mi_nest.source": "captured"})
 
 
 def acquire(config, output, operator=unattended_operator, progress=True, on_frame=None, on_retry=None,
