@@ -12,7 +12,7 @@ from mi_nest import occupancy
 from mi_nest.physics import MEASUREMENTS, Polariscope, aliasing, projection, su2
 from mi_nest.physics import steps as steps_analysis
 
-# Models of the ordered exponential along a ray (PHYSICS.md section 4).
+# Models of the ordered exponential along a ray (docs/physics.md section 4).
 METHODS = ("product", "linear", "magnus4", "rk4", "auto")
 # Where ``product`` samples each step: its midpoint (second order) or its start (first order).
 POINTS = {"midpoint": 0.5, "left": 0.0}
@@ -58,7 +58,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
 
      * - method
        - |string|
-       - Model of the ordered exponential (PHYSICS.md section 4): ``product``
+       - Model of the ordered exponential (docs/physics.md section 4): ``product``
          (exact exponential per step), ``linear`` (sum the projected stress
          along the ray, exponentiate once: exact only when the steps commute),
          ``magnus4`` (two Gauss points per step plus the commutator; fourth
@@ -85,7 +85,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
        - Most surface crossings followed per ray; a guard against broken meshes.
          (Default: 64)
 
-    Renders integrated photoelasticity (PHYSICS.md): for every camera ray it
+    Renders integrated photoelasticity (docs/physics.md): for every camera ray it
     follows the light from the ``polariscope_light`` panel to the camera through
     every shape whose interior is a ``stress`` medium, entering and leaving as
     often as the geometry requires (entry where the ray meets the outside of a

@@ -298,3 +298,15 @@ def test_a_view_without_specimen_warns(tmp_path):
         mi_nest.render(mi_nest.load_scene(scene))
     with pytest.warns(RuntimeWarning, match="the camera sees no specimen"):
         assert main(["render", str(scene), "-o", str(tmp_path / "empty.exr"), "--quiet"]) == 0
+
+
+def test_fringe_orders_beyond_float32_are_an_error(tmp_path, capsys):
+    """A stress large enough to lose the phase in float32 (but not to overflow) rendered garbage silently."""
+    output = tmp_path / "large.exr"
+    assert main(["render", str(cube_scene(tmp_path, res=8, stress=1e6)), "-o", str(output), "--quiet"]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "fringe orders reach 5.64e+05 in 64 of 64 pixels; beyond 1e+05" in error
+    assert not output.exists()
+    # a hundred times less is still a faithful render
+    assert main(["render", str(cube_scene(tmp_path, res=8, stress=1e4)), "-o", str(output), "--quiet"]) == 0
+    assert output.exists()
