@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -434,8 +435,17 @@ def _format_warning(message, category, filename, lineno, line=None):
 
 def main(argv=None):
     args = _parser().parse_args(argv)
-    with interrupts.handling():
-        return _run(args)
+    status = None
+    try:
+        with interrupts.handling():
+            status = _run(args)
+    except KeyboardInterrupt:
+        # Python runs a signal's handler at its next bytecode, which can be after the run's own handling (the
+        # handler being restored, or a second press): the run is over either way, and says so once.
+        status = status if status == INTERRUPTED_STATUS else _interrupted(args.command)
+    if status == INTERRUPTED_STATUS:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)     # the process ends now: no traceback from a late Ctrl-C
+    return status
 
 
 def _run(args):
