@@ -21,8 +21,8 @@ import numpy as np
 import mi_nest
 from mi_nest import occupancy
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
+from mi_nest.reconstruct.checkpoints import load_field
 from mi_nest.reconstruct.fields import deviatoric_part
-from mi_nest.reconstruct.optimization import load_field
 
 # Shares of the most stressed evaluation points whose part of the squared error is reported.
 TOP_SHARES = (0.01, 0.05, 0.2)

@@ -1,18 +1,17 @@
-"""The ``mi-nest`` command line: argument handling only, the work lives in the package."""
+"""The ``mi-nest`` command line: argument parsing and a table from command to handler; the work lives in
+the package."""
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import warnings
 from pathlib import Path
 
 from . import interrupts
+from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo, write_render
 from .reconstruct import DivergenceError
 from .rig.errors import RigError
-
-DEFAULT_SCENE = "disk_compression"
 
 
 def _definition(text):
@@ -174,95 +173,25 @@ def _parser():
     return parser
 
 
-def _render(scene_file, output, defines, png=None, spp=None, seed=0, progress=True):
+def _render(args):
     from . import load_scene, render
-    scene = load_scene(scene_file, **dict(defines))
-    result = render(scene, spp=spp, seed=seed, progress=progress)
-    result.write_exr(output)
-    print(f"wrote {Path(output).resolve()} ({len(result.channels)} channels, {result.main.shape[1]}x{result.main.shape[0]}, "
-          f"{result.seconds:.2f} s)")
-    if png:
-        result.write_png(png)
-        print(f"wrote {Path(png).resolve()}")
-    return scene, result
+    scene = load_scene(args.scene, **dict(args.defines))
+    write_render(render(scene, spp=args.spp, seed=args.seed, progress=not args.quiet), args.output, args.png)
 
 
-# The demo's loop: a load whose fringes a 48x48 camera resolves, spread over a 4 mm contact as platens do (point
-# loads are 1/r singular: no grid could hold them). At 100 N the fringes alias in half the views and the fit
-# settles in wrapped minima (34 to 69% error); at 60 N, with the targets' regulariser, 10.6% for two seeds.
-DEMO_LOAD, DEMO_CONTACT, DEMO_RES, DEMO_ROTATIONS = 60.0, 4.0, 48, 12
-DEMO_GRID, DEMO_ITERATIONS = 32, 4000
+def _demo(args):
+    run_demo(args.output_dir, args.iterations)
 
 
-def _demo(output_dir, iterations=DEMO_ITERATIONS):
-    """Render the default scene, then the whole NeST loop on it: simulate, reconstruct, compare."""
-    from . import load_scene, scene_path
-    from .dataset import Dataset, SimulationSettings, simulate
-    from .reconstruct import REGULARISED, optimize
-    out = Path(output_dir)
-    scene, result = _render(scene_path(DEFAULT_SCENE), out / f"{DEFAULT_SCENE}.exr", [],
-                            png=out / f"{DEFAULT_SCENE}.png")
-    medium = scene.shapes()[0].interior_medium()
-    disk = medium.field
-    order = 8 * disk.load / (math.pi * disk.diameter * medium.fringe_value)
-    print(f"disk under diametral compression, dark-field circular polariscope: closed-form fringe order "
-          f"at the centre {order:.3f}; main channel in [{result.main.min():.3f}, {result.main.max():.3f}]")
-
-    defines = {"load": DEMO_LOAD, "contact_width": DEMO_CONTACT}
-    print(f"NeST loop: {DEMO_ROTATIONS}x{DEMO_ROTATIONS} rotations at {DEMO_RES}x{DEMO_RES}, load {DEMO_LOAD:g} N "
-          f"over {DEMO_CONTACT:g} mm contacts")
-    settings = SimulationSettings(azimuths=DEMO_ROTATIONS, elevations=DEMO_ROTATIONS, res=DEMO_RES)
-    with warnings.catch_warnings():
-        # The load points are singular: a few pixels there always alias; the loop works around them.
-        warnings.simplefilter("ignore", RuntimeWarning)
-        report = simulate(scene_path(DEFAULT_SCENE), out / "dataset", settings, defines=defines)
-    print(report.describe())
-    dataset = Dataset(out / "dataset")
-    aliasing = dataset.index.get("fringe_aliasing")
-    if aliasing and aliasing["views"]:
-        print(f"fringes denser than the pixels in {aliasing['views']} of {aliasing['of']} views, "
-              f"over {100 * aliasing['mean_fraction']:.1f}% of the disk's pixels on average")
-    loop_scene = load_scene(scene_path(DEFAULT_SCENE), res=DEMO_RES, **defines)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", ".*fringes are denser than the pixels", RuntimeWarning)   # said above
-        reconstruction = optimize(loop_scene, dataset, output=out / "reconstruction", kind="grid",
-                                  resolution=DEMO_GRID, iterations=iterations, batch_size=2048, learning_rate=0.05,
-                                  final_learning_rate=0.002, **REGULARISED)
-    print(reconstruction.describe())
-    written = write_test_view(loop_scene, reconstruction, out / "reconstruction", dataset)
-    comparison = _truth_beside_reconstruction(reconstruction, defines, out)
-    print(f"relative deviatoric stress error: {100 * reconstruction.metrics['deviatoric_error']:.1f}% "
-          f"(for scale: sampling the true field at the nodes of this {reconstruction.field.describe()} gives "
-          f"{100 * reconstruction.metrics['representation_floor']:.1f}%)")
-    print(f"wrote {(out / 'reconstruction').resolve()} (field.npz, reconstruction.json{written}) and {comparison}")
-    return reconstruction
-
-
-def _truth_beside_reconstruction(reconstruction, defines, out):
-    """Render the default view (256x256) with the true and the reconstructed field, EXR each and one PNG."""
-    import numpy as np
-    from . import load_scene, render, scene_path
-    from .io.preview import write_preview
-    scene = load_scene(scene_path(DEFAULT_SCENE), **defines)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        truth = render(scene, progress=False)
-        reconstructed = reconstruction.render(scene, progress=False)
-    truth.write_exr(out / "truth.exr")
-    reconstructed.write_exr(out / "reconstructed.exr")
-    write_preview(out / "truth_vs_reconstructed.png", np.concatenate([truth.main, reconstructed.main], axis=1))
-    return f"{(out / 'truth_vs_reconstructed.png').resolve()} (truth | reconstructed)"
-
-
-def _export(field, output, defines, resolution):
+def _export(args):
     from .fields.sources import export_vtu, is_stress_file, stress_file
-    if is_stress_file(field):
-        summary = export_vtu(stress_file(field), output, resolution)
-        print(f"wrote {Path(output).resolve()} ({summary})")
+    if is_stress_file(args.field):
+        summary = export_vtu(stress_file(args.field), args.output, args.resolution)
+        print(f"wrote {Path(args.output).resolve()} ({summary})")
         return
     from . import load_scene
     from .export import export_scene_vtu
-    for path in export_scene_vtu(load_scene(field, **dict(defines)), output, resolution):
+    for path in export_scene_vtu(load_scene(args.field, **dict(args.defines)), args.output, args.resolution):
         print(f"wrote {path.resolve()}")
 
 
@@ -290,13 +219,13 @@ def _fem(args):
     print(f"wrote {Path(args.output).resolve()} ({result.report.nodes} nodes, {result.report.tets} tets)")
 
 
-def _bench_accuracy(scenes, res, output_dir):
+def _bench(args):
     from .bench import CASES, run_accuracy, write_results
-    names = tuple(scenes.split(",")) if scenes else tuple(CASES)
+    names = tuple(args.scenes.split(",")) if args.scenes else tuple(CASES)
     unknown = [n for n in names if n not in CASES]
     if unknown:
         raise ValueError(f"unknown bench case(s) {unknown}; available: {sorted(CASES)}")
-    for path in write_results(run_accuracy(names, res), output_dir):
+    for path in write_results(run_accuracy(names, args.res), args.output_dir):
         print(f"wrote {Path(path).resolve()}")
 
 
@@ -347,24 +276,14 @@ def _show_mesh(path, output):
 
 
 def _reconstruct(args):
-    from .dataset import Dataset
-    from .reconstruct import REGULARISED, optimize
-    dataset = Dataset(args.dataset)
-    source = dataset.index.get("source", {})
-    scene_file = args.scene or source.get("scene")
-    if scene_file is None:
-        raise ValueError(f"{args.dataset} does not name its scene; give --scene")
-    defines = {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
-    options = {"kind": args.kind, **(REGULARISED if args.regularised else {})}
-    for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
-        if getattr(args, name) is not None:
-            options[name] = getattr(args, name)
-    if args.minutes is not None:
-        options["time_limit"] = 60.0 * args.minutes     # optimize's config refuses a non-positive limit
-        options.setdefault("iterations", UNBOUNDED_ITERATIONS)
     from . import load_scene
+    from .dataset import Dataset
     from .io.lock import locked_directory
-    from .reconstruct import CheckpointError
+    from .reconstruct import CheckpointError, optimize
+    from .reconstruct.outputs import write_test_view
+    dataset = Dataset(args.dataset)
+    scene_file, defines = _reconstruction_scene(args, dataset)
+    options = _reconstruction_options(args)
     scene = load_scene(scene_file, **defines)
     with locked_directory(args.output):     # the test view too: no other run between the result and it
         try:
@@ -375,30 +294,28 @@ def _reconstruct(args):
         print(result.describe())
         written = write_test_view(scene, result, args.output, dataset)
     print(f"wrote {Path(args.output).resolve()} (field.npz, reconstruction.json{written})")
-    return result
 
 
-def write_test_view(scene, result, output, dataset):
-    """EXR of the first held-out rotation, reconstructed beside measured, and a PNG of one channel pair."""
-    from .io.exr import write_channels
-    from .io.preview import write_preview
-    from .reconstruct.optimization import predict_view, with_field
-    from .reconstruct.rays import ViewRays
-    import numpy as np
-    test = dataset.split("test") or dataset.split("train")
-    position = test[0]
-    width, height = dataset.resolution
-    with with_field(scene, result.field):
-        predicted = predict_view(scene, ViewRays(scene, dataset), result.integrator(), position)
-    measured = dataset.measurements(position)
-    channels = {f"reconstructed.{name}": predicted[:, i].reshape(height, width) for i, name in enumerate(dataset.channels)}
-    channels.update({f"measured.{name}": measured[..., i] for i, name in enumerate(dataset.channels)})
-    output = Path(output)
-    write_channels(output / "test_view.exr", channels)
-    shown = "pol.45.0.135" if "pol.45.0.135" in dataset.channels else dataset.channels[0]
-    write_preview(output / "test_view.png", np.concatenate([channels[f"reconstructed.{shown}"],
-                                                           channels[f"measured.{shown}"]], axis=1))
-    return ", test_view.exr, test_view.png (reconstructed | measured)"
+def _reconstruction_scene(args, dataset):
+    """The scene file and defines to reconstruct with: ``--scene`` and ``-D``, or the dataset's own."""
+    source = dataset.index.get("source", {})
+    scene_file = args.scene or source.get("scene")
+    if scene_file is None:
+        raise ValueError(f"{args.dataset} does not name its scene; give --scene")
+    return scene_file, {**(source.get("defines", {}) if args.scene is None else {}), **dict(args.defines)}
+
+
+def _reconstruction_options(args):
+    """``optimize``'s options from the flags given."""
+    from .reconstruct import REGULARISED
+    options = {"kind": args.kind, **({"regulariser": REGULARISED} if args.regularised else {})}
+    for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
+    if args.minutes is not None:
+        options["time_limit"] = 60.0 * args.minutes     # optimize's config refuses a non-positive limit
+        options.setdefault("iterations", UNBOUNDED_ITERATIONS)
+    return options
 
 
 def _acquire(args):
@@ -429,6 +346,17 @@ def _calibrate(args):
     print(f"wrote {Path(args.output).resolve()}")
 
 
+def _scenes(args):
+    from . import scene_path
+    for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
+        print(path.stem)
+
+
+COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "bench": _bench,
+            "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
+            "calibrate": _calibrate, "scenes": _scenes}
+
+
 def _format_warning(message, category, filename, lineno, line=None):
     return f"mi-nest: warning: {message}\n"
 
@@ -451,31 +379,7 @@ def main(argv=None):
 def _run(args):
     formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
-        if args.command == "render":
-            _render(args.scene, args.output, args.defines, png=args.png, spp=args.spp, seed=args.seed,
-                    progress=not args.quiet)
-        elif args.command == "demo":
-            _demo(args.output_dir, args.iterations)
-        elif args.command == "export":
-            _export(args.field, args.output, args.defines, args.resolution)
-        elif args.command == "fem":
-            _fem(args)
-        elif args.command == "bench":
-            _bench_accuracy(args.scenes, args.res, args.output_dir)
-        elif args.command == "simulate":
-            _simulate(args)
-        elif args.command == "show":
-            _show(args)
-        elif args.command == "reconstruct":
-            _reconstruct(args)
-        elif args.command == "acquire":
-            _acquire(args)
-        elif args.command == "calibrate":
-            _calibrate(args)
-        elif args.command == "scenes":
-            from . import scene_path
-            for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
-                print(path.stem)
+        COMMANDS[args.command](args)
     except KeyboardInterrupt as interrupt:
         return _interrupted(args.command, interrupt)
     except (ValueError, OSError, RigError, DivergenceError) as error:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mi_nest.reconstruct.fields import FieldConfig, make_field
-from mi_nest.reconstruct.optimization import with_field
+from mi_nest.reconstruct import with_field
 from scenes import box, scene
 
 # Stress that gives about a radian per mm of path: a few radians across the 4 mm box, so the

@@ -11,11 +11,11 @@ from mi_nest import occupancy
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.fields import UniformField
-from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, make_field,
-                                 optimize)
-from mi_nest.reconstruct import metrics
+from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, Regulariser,
+                                 make_field, optimize)
+from mi_nest.reconstruct import loop, metrics
+from mi_nest.reconstruct.evaluation import dataset_loss
 from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
-from mi_nest.reconstruct.optimization import dataset_loss
 
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
@@ -99,9 +99,8 @@ def test_auto_picks_the_grid_until_it_grows_too_large():
 @pytest.mark.parametrize("resolution, stages", [(6, [4, 6]), (16, [4, 8, 16]), (32, [8, 16, 32]),
                                                 (64, [8, 16, 32, 64]), (96, [12, 24, 48, 96])])
 def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, resolution, stages):
-    from mi_nest.reconstruct.optimization import _Run
     config = OptimizeConfig(field=FieldConfig(kind="grid", resolution=resolution))
-    run = _Run(_scene(), mi_nest.Dataset(tiny_dataset), config, np.zeros(3), np.ones(3), 1.0, None, False)
+    run = loop.Run(_scene(), mi_nest.Dataset(tiny_dataset), config, np.zeros(3), np.ones(3), 1.0, None, False)
     assert [r for _, r in run.stages] == stages
     starts = [s for s, _ in run.stages]
     assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
@@ -115,11 +114,10 @@ def _assign_ramp_along_x(field, slope):
 
 
 def test_an_edge_spares_steep_gradients_and_keeps_gentle_ones_quadratic():
-    def penalty(slope, edge, spare_edges=True):
-        field = make_field(FieldConfig(kind="grid", resolution=9, smoothness=1.0, smoothness_edge=edge),
-                           (0, 0, 0), (10, 10, 10), 1.0)
+    def penalty(slope, edge):
+        field = make_field(FieldConfig(kind="grid", resolution=9), (0, 0, 0), (10, 10, 10), 1.0)
         _assign_ramp_along_x(field, slope)
-        return float(field.regularization(spare_edges=spare_edges)[0])
+        return float(field.smoothness_penalty(1.0, edge)[0])
 
     quadratic = 0.02 ** 2 / 3                      # a third of the pairs (along x) see the slope
     assert penalty(0.02, edge=5.0) == pytest.approx(quadratic, rel=1e-4)
@@ -127,39 +125,39 @@ def test_an_edge_spares_steep_gradients_and_keeps_gentle_ones_quadratic():
     assert penalty(2000.0, edge=5.0) == pytest.approx(2 * 5.0 * 2000.0 / 3, rel=1e-2)
     assert penalty(4000.0, edge=5.0) / penalty(2000.0, edge=5.0) == pytest.approx(2.0, rel=1e-2)
     # Coarse stages keep the plain quadratic.
-    assert penalty(2000.0, edge=5.0, spare_edges=False) == pytest.approx(2000.0 ** 2 / 3, rel=1e-5)
+    assert penalty(2000.0, edge=None) == pytest.approx(2000.0 ** 2 / 3, rel=1e-5)
 
 
 def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_over_the_finest(tiny_dataset):
-    from mi_nest.reconstruct.optimization import _Run
-    field = FieldConfig(kind="grid", resolution=32, smoothness=1e-2, final_smoothness=1e-4)
-    run = _Run(_scene(), mi_nest.Dataset(tiny_dataset), OptimizeConfig(iterations=100, field=field),
-               np.zeros(3), np.ones(3), 1.0, None, False)
+    regulariser = Regulariser(smoothness=1e-2, final_smoothness=1e-4)
+    run = loop.Run(_scene(), mi_nest.Dataset(tiny_dataset),
+                   OptimizeConfig(iterations=100, kind="grid", resolution=32, regulariser=regulariser),
+                   np.zeros(3), np.ones(3), 1.0, None, False)
     weights = {}
     for iteration in (0, 30, 50, 75, 100):
         run.iteration = iteration
-        weights[iteration] = field.smoothness_at(run.smoothness_decayed())
+        weights[iteration] = regulariser.smoothness_at(run.smoothness_decayed())
     assert weights[0] == weights[30] == weights[50] == 1e-2
     assert weights[75] == pytest.approx(1e-3) and weights[100] == pytest.approx(1e-4)
-    assert FieldConfig(smoothness=1e-2).smoothness_at(0.7) == 1e-2
+    assert Regulariser(smoothness=1e-2).smoothness_at(0.7) == 1e-2
     for kind in ("hashgrid", "mlp"):
         with pytest.raises(ValueError, match="grids only"):
-            FieldConfig(kind=kind, smoothness=1e-2)
+            OptimizeConfig(kind=kind, smoothness=1e-2)
     for final in (0.0, 2e-2):
         with pytest.raises(ValueError, match="final_smoothness"):
-            FieldConfig(smoothness=1e-2, final_smoothness=final)
+            Regulariser(smoothness=1e-2, final_smoothness=final)
 
 
 def test_a_decaying_smoothness_reuses_its_kernels():
-    field = make_field(FieldConfig(kind="grid", resolution=6, smoothness=1e-2, final_smoothness=1e-4), (0, 0, 0),
-                       (1, 1, 1), 1.0)
+    regulariser = Regulariser(smoothness=1e-2, final_smoothness=1e-4)
+    field = make_field(FieldConfig(kind="grid", resolution=6), (0, 0, 0), (1, 1, 1), 1.0)
     optimizer = dr.opt.Adam(lr=1e-2, params=field.parameters())
 
     def kernels_of_steps(decays):
         dr.kernel_history()                     # clears it
         for decayed in decays:
             field.assign(optimizer)
-            dr.backward(field.regularization(decayed))
+            dr.backward(field.smoothness_penalty(regulariser.smoothness_at(decayed)))
             optimizer.step()
         dr.eval(optimizer["grid"])
         return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
@@ -209,9 +207,9 @@ def test_points_inside_a_disk_are_found_on_a_lattice_through_its_triangle_fans(z
 def test_smoothness_is_the_mean_squared_gradient_at_every_resolution(resolution):
     """A field rising by ``slope`` across a cube: (slope / side)^2 along x, 0 along y and z, a third on average."""
     slope, weight = 2.0, 0.25
-    field = make_field(FieldConfig(kind="grid", resolution=resolution, smoothness=weight), (0, 0, 0), (10, 10, 10), 1.0)
+    field = make_field(FieldConfig(kind="grid", resolution=resolution), (0, 0, 0), (10, 10, 10), 1.0)
     _assign_ramp_along_x(field, slope)
-    assert float(field.regularization()[0]) == pytest.approx(weight * slope ** 2 / 3, rel=1e-5)
+    assert float(field.smoothness_penalty(weight)[0]) == pytest.approx(weight * slope ** 2 / 3, rel=1e-5)
 
 
 def test_trilinear_basis_is_the_grid_fields_own_interpolation():
@@ -275,18 +273,17 @@ def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, mon
     options = {**FAST, "iterations": 4, "checkpoint_every": 1, "kind": "grid", **extra}
     whole = optimize(_scene(), tiny_dataset, output=tmp_path / "whole", progress=False, **options)
 
-    from mi_nest.reconstruct import optimization as module
-    original = module._Run.step
+    original = loop.Run.step
 
     def interrupted(self, integrator):
         if self.iteration == 3:
             raise KeyboardInterrupt
         return original(self, integrator)
 
-    monkeypatch.setattr(module._Run, "step", interrupted)
+    monkeypatch.setattr(loop.Run, "step", interrupted)
     with pytest.raises(KeyboardInterrupt):
         optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
-    monkeypatch.setattr(module._Run, "step", original)
+    monkeypatch.setattr(loop.Run, "step", original)
     resumed = optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
     assert [h["iteration"] for h in resumed.history] == [0, 1, 2, 3]
     if extra:
@@ -299,15 +296,14 @@ def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, mon
 
 
 def test_the_result_is_the_mean_of_the_averaged_iterates(tiny_dataset, monkeypatch):
-    from mi_nest.reconstruct import optimization as module
-    original, iterates = module._Run.step, []
+    original, iterates = loop.Run.step, []
 
     def recorded(self, integrator):
         loss = original(self, integrator)
         iterates.append(np.array(self.field.parameters()["grid"]))
         return loss
 
-    monkeypatch.setattr(module._Run, "step", recorded)
+    monkeypatch.setattr(loop.Run, "step", recorded)
     result = optimize(_scene(), tiny_dataset, progress=False, **{**FAST, "iterations": 4, "kind": "grid",
                                                                     **REGULARISED_AND_AVERAGED})
     assert iterates[2].shape == iterates[3].shape != iterates[1].shape       # refined before iteration 2
@@ -317,7 +313,7 @@ def test_the_result_is_the_mean_of_the_averaged_iterates(tiny_dataset, monkeypat
     with pytest.raises(ValueError, match="average_last"):
         OptimizeConfig(average_last=1.0)
     with pytest.raises(ValueError, match="smoothness_edge"):
-        FieldConfig(smoothness=1.0, smoothness_edge=-1.0)
+        Regulariser(smoothness=1.0, smoothness_edge=-1.0)
 
 
 def test_divergence_is_reported_with_the_last_good_checkpoint(tiny_dataset, tmp_path, monkeypatch):
@@ -373,7 +369,7 @@ def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys
     history = json.loads((tmp_path / "result" / "reconstruction.json").read_text())["history"]
     # The clock ended it, on the final learning rate.
     assert history[-1]["seconds"] >= 0.3
-    assert history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)
+    assert history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().optimiser.final_learning_rate, rel=0.05)
     assert main([*timed, "0", "-o", str(tmp_path / "x")]) == 2
     assert "'time_limit' must be a positive number" in capsys.readouterr().err
 
@@ -384,9 +380,9 @@ def test_cli_reconstructs_with_the_targets_regulariser_and_explicit_options_over
               "--no-progress", "--regularised"]
     assert main([*common, "--kind", "grid", "--smoothness", "1e-3", "-o", str(tmp_path / "grid")]) == 0
     config = json.loads((tmp_path / "grid" / "reconstruction.json").read_text())["config"]
-    assert config["field"]["smoothness"] == 1e-3
-    assert config["field"]["smoothness_edge"] == REGULARISED["smoothness_edge"]
-    assert config["average_last"] == REGULARISED["average_last"]
+    assert config["regulariser"]["smoothness"] == 1e-3
+    assert config["regulariser"]["smoothness_edge"] == REGULARISED.smoothness_edge
+    assert config["regulariser"]["average_last"] == REGULARISED.average_last
     # Other representations have no smoothness to regularise: refused, not ignored.
     assert main([*common, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 2
     assert "acts on grids only" in capsys.readouterr().err
@@ -400,4 +396,4 @@ def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
     assert "deviatoric_error" in result.history[0] and "deviatoric_error" in result.history[-1]
     assert (tmp_path / "run" / "checkpoint.npz").is_file()
     # The schedules follow the clock: the last learning rate is the final one.
-    assert result.history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().final_learning_rate, rel=0.05)
+    assert result.history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().optimiser.final_learning_rate, rel=0.05)

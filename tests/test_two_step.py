@@ -137,17 +137,17 @@ def test_two_step_reconstruction_fits_the_unwrapped_data(small_disk):
 
 
 def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(small_disk, monkeypatch):
-    from mi_nest.reconstruct import optimization
+    from mi_nest.reconstruct import loop
     data, scene = small_disk
     models = []
-    original = optimization.make_integrator
+    original = loop.make_integrator
 
     def recording(config, field, method=None):
         integrator = original(config, field, method)
         models.append(integrator.method)
         return integrator
 
-    monkeypatch.setattr(optimization, "make_integrator", recording)     # a spy: the real integrators run
+    monkeypatch.setattr(loop, "make_integrator", recording)     # a spy: the real integrators run
     result = optimize(scene, data, progress=False, warm_start=0.5, kind="grid", resolution=8, iterations=40,
                       batch_size=256, views_per_batch=3, learning_rate=0.1, pixel_samples=1, evaluate_views=1,
                       coarse_to_fine=False)

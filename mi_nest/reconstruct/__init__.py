@@ -1,7 +1,12 @@
 """Inverse reconstruction (NeST tomography): trainable fields, the optimiser, metrics."""
-from .fields import FieldConfig, HashGridField, DeviatoricGrid, MLPField, TrainableField, make_field
-from .optimization import (REGULARISED, CheckpointError, DivergenceError, OptimizeConfig, Reconstruction,
-                           optimize, with_field)
+from .checkpoints import CheckpointError, Reconstruction
+from .config import (REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser, Regulariser, Reporting,
+                     Schedule)
+from .fields import DeviatoricGrid, HashGridField, MLPField, TrainableField, make_field
+from .forward import with_field
+from .loop import DivergenceError
+from .optimization import optimize
 
-__all__ = ["optimize", "OptimizeConfig", "Reconstruction", "DivergenceError", "CheckpointError", "FieldConfig",
-           "TrainableField", "DeviatoricGrid", "HashGridField", "MLPField", "make_field", "with_field", "REGULARISED"]
+__all__ = ["optimize", "OptimizeConfig", "Schedule", "Optimiser", "ForwardModel", "Regulariser", "Reporting",
+           "Reconstruction", "DivergenceError", "CheckpointError", "FieldConfig", "TrainableField", "DeviatoricGrid",
+           "HashGridField", "MLPField", "make_field", "with_field", "REGULARISED"]

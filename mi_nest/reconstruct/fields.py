@@ -14,66 +14,18 @@ optimiser's variables), ``state()``/``from_state()`` (NumPy, for checkpoints).
 """
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, replace
 
 import drjit as dr
 import drjit.nn as nn
 import mitsuba as mi
 import numpy as np
 
-from ..arguments import whole_number
 from ..fields.base import StressField
 from ..io.grid import grid_nodes
+from .config import FieldConfig
 
-KINDS = ("grid", "hashgrid", "mlp")
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
-
-
-@dataclass(frozen=True)
-class FieldConfig:
-    """What to reconstruct with. ``kind="auto"`` picks the cheapest that fits (:func:`choose_kind`)."""
-    kind: str = "auto"
-    resolution: int = 32             # grid: nodes along the longest axis
-    smoothness: float = 0.0          # grid: weight of the mean squared gradient (lengths in box widths)
-    final_smoothness: float | None = None  # grid: the weight at the end, decayed over the finest stage (None: constant)
-    smoothness_edge: float | None = None   # grid, finest stage: gradient above which the penalty grows linearly
-    levels: int = 8                  # hashgrid
-    features_per_level: int = 2      # hashgrid
-    hashmap_size: int = 2 ** 15      # hashgrid: entries per level
-    base_resolution: int = 4         # hashgrid
-    level_scale: float = 1.5         # hashgrid: resolution ratio between levels
-    width: int = 64                  # MLPs: hidden units per layer
-    layers: int = 3                  # mlp: hidden layers (hashgrid: 1)
-    octaves: int = 6                 # mlp: sinusoidal encoding octaves
-    seed: int = 0
-
-    def __post_init__(self):
-        if self.kind not in KINDS + ("auto",):
-            raise ValueError(f"field kind must be one of {KINDS + ('auto',)}, got '{self.kind}'")
-        for name in ("resolution", "levels", "features_per_level", "hashmap_size", "base_resolution", "width",
-                     "layers", "octaves"):
-            whole_number(name, getattr(self, name))
-        if self.resolution < 2:
-            raise ValueError(f"grid resolution must be at least 2, got {self.resolution}")
-        if not self.smoothness >= 0:
-            raise ValueError(f"smoothness must be non-negative, got {self.smoothness}")
-        if self.final_smoothness is not None and not 0 < self.final_smoothness <= self.smoothness:
-            raise ValueError(f"final_smoothness decays from smoothness ({self.smoothness}) and must lie in "
-                             f"(0, smoothness], got {self.final_smoothness}")
-        if self.smoothness_edge is not None and not (math.isfinite(self.smoothness_edge) and self.smoothness_edge > 0):
-            raise ValueError(f"smoothness_edge is a gradient (stress scales per box width) and must be positive, "
-                             f"got {self.smoothness_edge}")
-        if self.kind in ("hashgrid", "mlp") and (self.smoothness or self.smoothness_edge is not None):
-            # Silently ignored, a regulariser the user asked for would leave them comparing unlike runs.
-            raise ValueError(f"the smoothness regulariser acts on grids only, and this field is a '{self.kind}' "
-                             f"(give kind='grid', or drop smoothness, final_smoothness and smoothness_edge)")
-
-    def smoothness_at(self, decayed):
-        """The smoothness weight once ``decayed`` (0 to 1) of its geometric decay to ``final_smoothness`` is done."""
-        if self.final_smoothness is None:
-            return self.smoothness
-        return self.smoothness * (self.final_smoothness / self.smoothness) ** decayed
 
 
 # Above this many grid nodes a hash grid stores the same detail in less memory and fewer updates.
@@ -134,12 +86,10 @@ class TrainableField(StressField):
     def assign(self, values) -> None:
         raise NotImplementedError
 
-    def regularization(self, decayed=1.0, spare_edges=True):
-        """A penalty added to the loss (None: none).
-
-        ``decayed``: how far its weight has decayed (0 to 1); ``spare_edges``:
-        whether steep gradients are penalised less (the finest stage).
-        """
+    def smoothness_penalty(self, weight: float, edge: float | None = None):
+        """``weight`` times the mean squared gradient, growing only linearly above the gradient ``edge``
+        (None: quadratic throughout); a term of the loss. None where the weight is 0 or the representation
+        has no gradient to penalise."""
         return None
 
     def state(self) -> dict:
@@ -195,8 +145,7 @@ class DeviatoricGrid(TrainableField):
     def assign(self, values):
         self.texture.set_tensor(values["grid"])
 
-    def regularization(self, decayed=1.0, spare_edges=True):
-        weight = self.config.smoothness_at(decayed)
+    def smoothness_penalty(self, weight, edge=None):
         if weight == 0:
             return None
         if self._pairs is None:
@@ -208,7 +157,6 @@ class DeviatoricGrid(TrainableField):
         # smoothed harder than the final grid (squared differences grow with the spacing squared).
         per_length = self.config.resolution - 1
         difference = (dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)) * per_length
-        edge = self.config.smoothness_edge if spare_edges else None
         if edge is None:
             penalty = dr.square(difference)
         else:
@@ -340,7 +288,7 @@ def deviatoric_part(stress):
 
 def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
     """``field`` resampled onto a grid of ``resolution`` nodes along the longest axis (coarse to fine)."""
-    config = FieldConfig(**{**asdict(field.config), "kind": "grid", "resolution": int(resolution)})
+    config = replace(field.config, kind="grid", resolution=int(resolution))
     finer = DeviatoricGrid(config, field.bbox_min, field.bbox_max, field.stress_scale)
     nx, ny, nz = finer.shape
     nodes = mi.Point3f(grid_nodes(field.bbox_min, field.bbox_max, finer.shape).T.astype(np.float32))

@@ -77,3 +77,13 @@ class ViewRays:
         width, height = self.dataset.resolution
         rows, columns = np.divmod(np.arange(width * height), width)
         return self.rays(np.full(rows.shape, position), rows, columns)
+
+
+def stratified(pixels: int, samples: int, rng: np.random.Generator) -> np.ndarray:
+    """``(pixels * samples, 2)`` positions in [0, 1)^2: one per cell of a near-square grid per pixel."""
+    columns = int(np.ceil(np.sqrt(samples)))
+    rows = int(np.ceil(samples / columns))
+    cells = np.arange(samples)
+    offsets = np.stack([cells % columns, cells // columns], axis=-1) / np.array([columns, rows])
+    jitter = rng.random((pixels, samples, 2)) / np.array([columns, rows])
+    return (offsets[None] + jitter).reshape(-1, 2)

@@ -1,0 +1,169 @@
+"""What a reconstruction leaves on disk: checkpoints a rerun resumes from, and the saved result."""
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+
+from ..io.atomic import atomic_path
+from .config import OptimizeConfig
+from .fields import TrainableField, field_from_state
+from .forward import make_integrator, with_field
+
+CHECKPOINT = "checkpoint.npz"
+# What every checkpoint holds; one without them was cut short or is not a checkpoint.
+CHECKPOINT_KEYS = ("config", "dataset", "iteration", "iterates_averaged", "seconds", "history", "rng", "path_range")
+
+
+class CheckpointError(ValueError):
+    """The output directory's checkpoint cannot be resumed from; ``problem`` says why, without the remedy
+    (``resume=False`` here, ``--restart`` on the command line)."""
+
+    def __init__(self, problem):
+        super().__init__(f"{problem}; pass resume=False to start over")
+        self.problem = problem
+
+
+@dataclass
+class Checkpoint:
+    """A run's state between two iterations: what resuming needs to go on as if it had never stopped."""
+    field: TrainableField
+    adam: dict                       # parameter name -> Adam's (t, m, v) as NumPy arrays
+    averages: dict                   # parameter name -> the sum of the averaged iterates (NumPy)
+    iterates_averaged: int
+    iteration: int
+    seconds: float
+    history: list
+    rng: dict                        # the state of the batches' bit generator
+    path_range: list | None          # the path curriculum's (shortest, longest), once measured
+
+    def save(self, path: Path, config: OptimizeConfig, dataset) -> None:
+        """Write to ``path``, with the run's ``config`` and ``dataset``, which a resumed run must share."""
+        state = {f"field.{k}": v for k, v in self.field.state().items()}
+        for name, moments in self.adam.items():
+            state.update({f"adam.{name}.{key}": value for key, value in zip("tmv", moments)})
+        state.update({f"average.{name}": total for name, total in self.averages.items()})
+        state.update({"iteration": self.iteration, "iterates_averaged": self.iterates_averaged,
+                      "seconds": self.seconds, "history": json.dumps(self.history), "rng": json.dumps(self.rng),
+                      "path_range": json.dumps(self.path_range), "config": json.dumps(config.to_dict()),
+                      "dataset": str(dataset.directory.resolve())})
+        with atomic_path(path, ".npz") as tmp:
+            _save_npz(tmp, state)
+
+    @classmethod
+    def load(cls, path: Path, config: OptimizeConfig, dataset) -> Checkpoint:
+        """The checkpoint at ``path``; :class:`CheckpointError` if it is unreadable, cut short, or of a run
+        with another ``config`` or ``dataset``."""
+        state = _read_whole(path)
+        if json.loads(str(state["config"])) != config.to_dict() or \
+                str(state["dataset"]) != str(dataset.directory.resolve()):
+            raise CheckpointError(f"{path} is a checkpoint of another run (other options or dataset); choose "
+                                  "another output directory")
+        field_state = {k[len("field."):]: v for k, v in state.items() if k.startswith("field.")}
+        field_state["config"] = json.loads(str(field_state["config"]))
+        stress_field = field_from_state(field_state)
+        adam = {name: tuple(state[f"adam.{name}.{key}"] for key in "tmv") for name in stress_field.parameters()}
+        averages = {k[len("average."):]: v for k, v in state.items() if k.startswith("average.")}
+        return cls(stress_field, adam, averages, int(state["iterates_averaged"]), int(state["iteration"]),
+                   float(state["seconds"]), json.loads(str(state["history"])), json.loads(str(state["rng"])),
+                   json.loads(str(state["path_range"])))
+
+
+def _read_whole(path):
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            state = {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise CheckpointError(f"{path} is not a readable checkpoint ({error})") from error
+    missing = [key for key in CHECKPOINT_KEYS if key not in state]
+    if missing:
+        raise CheckpointError(f"{path} is not a whole checkpoint (no {', '.join(missing)})")
+    return state
+
+
+def adam_moments(optimizer: dr.opt.Adam) -> dict:
+    """Parameter name -> Adam's step count and first and second moments ``(t, m, v)``, as NumPy arrays."""
+    moments = {}
+    for name in optimizer.keys():
+        _, _, _, extra = optimizer.state[name]
+        moments[name] = tuple(np.array(x) for x in extra[:3])
+    return moments
+
+
+def restore_adam_moments(optimizer: dr.opt.Adam, moments: dict) -> None:
+    """Give ``optimizer`` the ``(t, m, v)`` of :func:`adam_moments`."""
+    for name in optimizer.keys():
+        value, promoted, lr, extra = optimizer.state[name]
+        t, m, v = (type(x)(saved) for x, saved in zip(extra[:3], moments[name]))
+        optimizer.state[name] = (value, promoted, lr, (t, m, v, *extra[3:]))
+
+
+@dataclass
+class Reconstruction:
+    """The result: the field, its loss history and (for simulated data) its errors."""
+    field: TrainableField
+    config: OptimizeConfig
+    history: list                    # {iteration, loss, learning_rate, seconds}
+    metrics: dict
+    seconds: float
+
+    def describe(self) -> str:
+        lines = [f"{self.field!r}: {self.field.parameter_count()} parameters, {len(self.history)} iterations in "
+                 f"{self.seconds:.1f} s, final loss {self.history[-1]['loss']:.4f}" if self.history else ""]
+        if "deviatoric_error" in self.metrics:
+            floor = self.metrics.get("representation_floor")
+            lines.append(f"relative deviatoric stress error {100 * self.metrics['deviatoric_error']:.2f}%"
+                         + ("" if floor is None else f" (the truth sampled on this grid: {100 * floor:.2f}%)")
+                         + f", principal stress difference error {100 * self.metrics['principal_difference_error']:.2f}%")
+        if "test_psnr" in self.metrics:
+            lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
+                         "rotations")
+        return "\n".join(line for line in lines if line)
+
+    def save(self, directory) -> Path:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        with atomic_path(directory / "field.npz", ".npz") as tmp:
+            _save_npz(tmp, self.field.state())
+        record = {"config": self.config.to_dict(), "metrics": self.metrics, "seconds": self.seconds,
+                  "field": self.field.describe(), "parameters": self.field.parameter_count(),
+                  "history": self.history}
+        with atomic_path(directory / "reconstruction.json", ".json") as tmp:
+            Path(tmp).write_text(json.dumps(record, indent=1))
+        return directory
+
+    @classmethod
+    def load(cls, directory) -> Reconstruction:
+        directory = Path(directory)
+        for name in ("field.npz", "reconstruction.json"):
+            if not (directory / name).is_file():
+                raise FileNotFoundError(f"{directory} is not a reconstruction: {name} missing")
+        record = json.loads((directory / "reconstruction.json").read_text())
+        return cls(load_field(directory / "field.npz"), OptimizeConfig.from_dict(record["config"]),
+                   record["history"], record["metrics"], record["seconds"])
+
+    def integrator(self):
+        return make_integrator(self.config, self.field)
+
+    def render(self, scene, **options):
+        """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""
+        from ..render import render
+        with with_field(scene, self.field):
+            return render(scene, **options)
+
+
+def load_field(path) -> TrainableField:
+    """The field of a saved reconstruction (``field.npz``)."""
+    with np.load(path, allow_pickle=False) as data:
+        state = {key: data[key] for key in data.files}
+    state["config"] = json.loads(str(state["config"]))
+    return field_from_state(state)
+
+
+def _save_npz(path, state: dict) -> None:
+    """``state`` as an ``.npz``, its dictionaries as JSON strings."""
+    np.savez(path, **{k: (json.dumps(v) if isinstance(v, dict) else v) for k, v in state.items()})

@@ -1,0 +1,67 @@
+"""How good a reconstruction is: its intensities against the measured ones, and its stress against the truth."""
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+
+from ..dataset import Dataset
+from ..physics import MEASUREMENTS
+from . import metrics
+from .forward import with_field
+from .losses import intensities
+from .rays import ViewRays
+
+
+def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator, position: int) -> np.ndarray:
+    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with the scene's current field,
+    through the polariscopes the dataset was measured with."""
+    rays, right = view_rays.view(position)
+    state, blocked, _ = integrator.trace_rays(scene, rays, right)
+    scopes = view_rays.dataset.polariscopes()
+    return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked), scopes)], axis=-1)
+
+
+def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray | None:
+    """The ``(H * W,)`` pixels of rotation ``position`` inside the dataset channel ``mask`` (None: all)."""
+    if mask is None:
+        return None
+    return dataset.view(position, [mask])[mask].ravel() > 0.5
+
+
+def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field, integrator, split: str = "train",
+                 mask: str | None = "mask.dolp") -> float:
+    """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
+    view_rays = ViewRays(scene, dataset)
+    total = count = 0.0
+    with with_field(scene, stress_field):
+        for position in dataset.split(split):
+            error = np.abs(predict_view(scene, view_rays, integrator, position)
+                           - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
+            inside = view_mask(dataset, position, mask)
+            if inside is not None:
+                error = error[inside]
+            total += float(error.sum())
+            count += error.size
+    return total / max(count, 1)
+
+
+def evaluate(scene: mi.Scene, dataset: Dataset, stress_field, integrator, truth, views: int, mask: str | None,
+             shapes: list) -> dict:
+    """Errors against ``truth`` over the occupied volume, and PSNR of up to ``views`` held-out rotations."""
+    results = {}
+    if truth is not None:
+        points = metrics.evaluation_points(scene, shapes)
+        errors = metrics.stress_errors(stress_field, truth, points)
+        results.update(deviatoric_error=errors.deviatoric, principal_difference_error=errors.principal_difference,
+                       evaluation_points=errors.points)
+        floor = metrics.representation_floor(stress_field, truth, points)
+        if floor is not None:
+            results["representation_floor"] = floor
+    test = dataset.split("test")[:views]
+    if test:
+        view_rays = ViewRays(scene, dataset)
+        values = [metrics.psnr(predict_view(scene, view_rays, integrator, position),
+                               dataset.measurements(position).reshape(-1, len(MEASUREMENTS)),
+                               view_mask(dataset, position, mask)) for position in test]
+        results.update(test_psnr=float(np.mean(values)), test_views=len(test))
+    return results

@@ -1,0 +1,43 @@
+"""The forward model of a reconstruction: its integrator, and its field in the scene's specimens."""
+from __future__ import annotations
+
+import contextlib
+
+import mitsuba as mi
+
+from ..dataset.simulate import specimen_media
+from .config import OptimizeConfig
+from .fields import TrainableField, grid_shape
+
+
+def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method: str | None = None):
+    """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid);
+    ``method`` overrides the config's forward model."""
+    step = config.model.step_size
+    if step is None:
+        extent = stress_field.bbox_max - stress_field.bbox_min
+        if stress_field.kind == "grid":
+            step = 0.5 * extent.max() / (max(grid_shape(config.field.resolution, extent)) - 1)
+        else:
+            step = float(extent.max()) / 64.0
+    method = method or config.model.method
+    method = "linear" if method == "two-step" else method
+    return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True})
+
+
+def plant_field(scene: mi.Scene, stress_field) -> None:
+    """Give every specimen of ``scene`` the stress field ``stress_field``."""
+    for medium in specimen_media(scene):
+        medium.field = stress_field
+
+
+@contextlib.contextmanager
+def with_field(scene: mi.Scene, stress_field):
+    """Temporarily give every specimen of ``scene`` the stress field ``stress_field``."""
+    previous = [(medium, medium.field) for medium in specimen_media(scene)]
+    plant_field(scene, stress_field)
+    try:
+        yield
+    finally:
+        for medium, original in previous:
+            medium.field = original

@@ -1,0 +1,354 @@
+"""The optimisation loop: batches, the curriculum, averaging, divergence, checkpoints and Ctrl-C.
+
+Each iteration draws a batch of pixels across training rotations, marches
+their rays through the trainable field (no derivatives kept), takes the L1
+loss of the 16 normalised intensities, and replays the march backwards to push
+the loss gradient into the field (constant memory, see
+``PhotoelasticIntegrator.backpropagate_rays``); Adam updates the field. Joint
+phase unwrapping and tensor tomography happen together: nothing is unwrapped
+per view.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .. import interrupts
+from ..fields.base import sample
+from ..dataset.simulate import specimen_shapes
+from . import metrics
+from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
+from .fields import choose_kind, make_field, refined
+from .forward import make_integrator, plant_field
+from .losses import generator_loss, l1_loss
+from .rays import ViewRays, stratified
+from .two_step import RetardanceTargets
+
+# Nodes along the longest axis of the first coarse-to-fine stage.
+COARSEST_GRID = 8
+# A gradient this many times the median of the recent ones counts as exploding.
+EXPLODING_FACTOR = 1e4
+# A field beyond this many stress scales (each about one fringe across the specimen) per pixel across the
+# dataset's images has run away: 40 times the Nyquist limit, no image could tell its phase. The true fields
+# of the shipped scenes stay below 3 per pixel at any resolution their datasets use.
+RUNAWAY_ORDERS_PER_PIXEL = 20
+# Points per axis of the lattice inside the specimen where the field's magnitude is checked.
+MAGNITUDE_POINTS = 16
+
+
+class DivergenceError(RuntimeError):
+    """The optimisation produced a non-finite loss or an exploding gradient."""
+
+
+class Run:
+    """The state of one optimisation: field, optimiser, random state, history; checkpoints."""
+
+    def __init__(self, scene, dataset, config, low, high, scale, output, progress):
+        self.scene, self.dataset, self.config = scene, dataset, config
+        self.output = None if output is None else Path(output)
+        self.show_progress = progress
+        self.kind = choose_kind(config.field, high - low)
+        self.stages = self._stages()
+        self.field = make_field(replace(config.field, kind=self.kind, resolution=self.stages[0][1]), low, high,
+                                scale)
+        self.view_rays = ViewRays(scene, dataset)
+        self.pixel_samples = int(config.optimiser.pixel_samples or min(4, int(dataset.index.get("spp", 1))))
+        self.rng = np.random.default_rng(config.optimiser.seed)
+        self.iteration = 0
+        self.history = []
+        self.seconds = 0.0
+        self.gradient_norms = []
+        self.optimizer = self._optimizer()
+        self.last_good = None
+        self.iterate_sums, self.iterates_averaged = {}, 0
+        self.retardance = (RetardanceTargets(dataset, config.optimiser.mask)
+                           if config.model.method == "two-step" or config.schedule.warm_start else None)
+        self.error_probe = None
+        self.polariscopes = dataset.polariscopes()
+        self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
+        self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
+
+    def _stages(self):
+        """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
+        resolution = self.config.field.resolution
+        if self.kind != "grid" or not self.config.schedule.coarse_to_fine:
+            return [(0.0, resolution)]
+        resolutions = sorted({r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution})
+        # Fine grids start coarser still: from 16 nodes the disk at 64 stuck in a wrapped minimum at 80%
+        # error; from 8 at 32 it went on down.
+        while resolutions and resolutions[0] // 2 >= COARSEST_GRID:
+            resolutions.insert(0, resolutions[0] // 2)
+        resolutions.append(resolution)
+        # The finest stage gets the second half: it has the most unknowns.
+        starts = [0.5 * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 else [0.0]
+        return list(zip(starts, resolutions))
+
+    def progress(self):
+        """How far the run is, in [0, 1]: by iterations, or by time when a time limit comes first."""
+        schedule = self.config.schedule
+        done = self.iteration / schedule.iterations
+        if schedule.time_limit is not None:
+            done = max(done, self.seconds / schedule.time_limit)
+        return min(done, 1.0)
+
+    def _optimizer(self):
+        optimizer = dr.opt.Adam(lr=self.config.optimiser.learning_rate, params=self.field.parameters())
+        self.field.assign(optimizer)
+        return optimizer
+
+    def fitting_retardance(self):
+        """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
+        return self.config.model.method == "two-step" or self.progress() < self.config.schedule.warm_start
+
+    def integrator(self):
+        return make_integrator(self.config, self.field, "two-step" if self.fitting_retardance() else None)
+
+    def learning_rate(self):
+        """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
+        optimiser = self.config.optimiser
+        ratio = optimiser.final_learning_rate / optimiser.learning_rate
+        return optimiser.learning_rate * ratio ** self.progress()
+
+    def in_finest_stage(self):
+        return self.progress() >= self.stages[-1][0]
+
+    def averaging(self):
+        """Whether iterates now enter the averaged result: the run's last ``average_last``, finest stage only."""
+        share = self.config.regulariser.average_last
+        return share > 0 and self.in_finest_stage() and self.progress() >= 1.0 - share
+
+    def _add_to_average(self):
+        # Polyak averaging: near the end Adam's iterates wander around the minimum, most along the
+        # directions the data constrain least; their mean lies closer to it than any one of them.
+        for name in self.optimizer.keys():
+            value = dr.detach(self.optimizer[name])
+            self.iterate_sums[name] = value if name not in self.iterate_sums else self.iterate_sums[name] + value
+        dr.eval(self.iterate_sums)
+        self.iterates_averaged += 1
+
+    def smoothness_decayed(self):
+        """How far the smoothness weight has decayed (0 to 1): over the finest stage, once the coarse stages
+        have chosen the branch that the regulariser is there to choose."""
+        start = self.stages[-1][0]
+        return min(1.0, max(0.0, (self.progress() - start) / (1.0 - start)))
+
+    def loop(self):
+        schedule, reporting = self.config.schedule, self.config.reporting
+        integrator = self.integrator()
+        phase = self.fitting_retardance()
+        bar = None
+        if self.show_progress:
+            from tqdm import tqdm
+            # Against a time limit the bar counts seconds: the iteration count would not say when it ends.
+            timed = schedule.time_limit is not None
+            bar = tqdm(total=schedule.time_limit if timed else schedule.iterations,
+                       initial=min(self.seconds, schedule.time_limit) if timed else self.iteration,
+                       desc=f"reconstruct ({self.field.kind})", unit="s" if timed else "it", mininterval=0.5,
+                       bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]" if timed
+                       else None)
+        try:
+            while self.iteration < schedule.iterations and not self.out_of_time():
+                interrupts.check()
+                self._refine_if_due()
+                if self.fitting_retardance() != phase:
+                    # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
+                    phase = self.fitting_retardance()
+                    integrator = self.integrator()
+                    self.optimizer = self._optimizer()
+                start = time.perf_counter()
+                loss = self.step(integrator)
+                elapsed = time.perf_counter() - start
+                self.seconds += elapsed
+                self.history.append({"iteration": self.iteration, "loss": loss,
+                                     "learning_rate": self.learning_rate(),
+                                     "seconds": round(self.seconds, 4)})
+                if self.error_probe is not None and self.iteration % reporting.track_error_every == 0:
+                    # Outside the timed step: following the error does not slow the run's clock.
+                    self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
+                self.iteration += 1
+                if self.iteration % reporting.checkpoint_every == 0 or self.iteration == schedule.iterations:
+                    self.checkpoint()
+                if bar is not None:
+                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{self.config.optimiser.batch_size * self.pixel_samples / elapsed:.3g}",
+                                    refresh=False)
+                    bar.update(min(elapsed, schedule.time_limit - bar.n) if timed else 1)
+            if self.error_probe is not None and self.history and "deviatoric_error" not in self.history[-1]:
+                # The run's last point too, however the tracking interval fell.
+                self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
+        except KeyboardInterrupt:
+            self.checkpoint()
+            where = "" if self.output is None else f", checkpoint in {self.output / CHECKPOINT}"
+            raise interrupts.Interrupted(f"stopped after iteration {self.iteration}{where}; run it again to resume "
+                                         "from there") from None
+        finally:
+            if bar is not None:
+                bar.close()
+
+    def out_of_time(self):
+        time_limit = self.config.schedule.time_limit
+        if time_limit is None or self.seconds < time_limit:
+            return False
+        self.checkpoint()
+        return True
+
+    def _refine_if_due(self):
+        resolution = [r for start, r in self.stages if start <= self.progress()][-1]
+        if self.field.kind == "grid" and self.field.config.resolution != resolution:
+            self.field = refined(self.field, resolution)
+            plant_field(self.scene, self.field)
+            self.optimizer = self._optimizer()
+
+    def step(self, integrator):
+        optimiser = self.config.optimiser
+        positions, rows, columns, targets = self.dataset.ray_batch(
+            optimiser.batch_size, self.rng, views_per_batch=optimiser.views_per_batch, mask=optimiser.mask)
+        samples = self.pixel_samples
+        fitting_retardance = self.fitting_retardance()
+        if fitting_retardance:
+            targets = self.retardance.at(positions, rows, columns)
+        rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
+                                          jitter=stratified(len(rows), samples, self.rng))
+        self.optimizer.set_learning_rate(self.learning_rate())
+        seed = optimiser.seed * 1_000_003 + self.iteration
+        state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
+        admitted = None
+        limit = self.path_limit(length, samples)
+        if limit is not None:
+            # Opaque: a literal limit would rebuild the kernel every iteration.
+            admitted = dr.select(dr.block_sum(length, samples) <= dr.opaque(mi.Float, samples * limit), 1.0, 0.0)
+        with dr.resume_grad():
+            leaf = tuple(mi.Float(x) for x in state)
+            dr.enable_grad(leaf)
+            if fitting_retardance:
+                loss = generator_loss(leaf, targets, samples)
+            else:
+                loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted, self.polariscopes)
+            total = loss
+            regulariser = self.config.regulariser
+            # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
+            penalty = self.field.smoothness_penalty(regulariser.smoothness_at(self.smoothness_decayed()),
+                                                    regulariser.smoothness_edge if self.in_finest_stage() else None)
+            if penalty is not None:
+                total = total + penalty
+            dr.backward(total)
+            state_grad = dr.grad(leaf)
+        integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed)
+        value = float(total[0])
+        self._check_divergence(value)
+        self.optimizer.step()
+        # The field follows the optimiser's new values at once: checkpoints and the result hold this step.
+        self.field.assign(self.optimizer)
+        if self.averaging():
+            self._add_to_average()
+        return value
+
+    def path_limit(self, length, samples):
+        """The longest path (mm) whose pixels enter the loss now; None: all.
+
+        Retardance, and with it phase wrapping, grows with the path through the
+        specimen. Fitting short paths first gives the longer ones a field that
+        is already nearly right, instead of the wrapped local minima a fit of
+        all paths at once falls into. The limit grows geometrically over the
+        first ``path_curriculum`` of the run, from the path that a tenth of the
+        pixels stay under to the longest, both measured on the first batch
+        (``length``: per ray, ``samples`` rays per pixel): the specimen's shape
+        sets them, not its bounding box, whose thinnest side can exceed most
+        paths (the kitten's does). The Two-step fit has unwrapped targets and a
+        convex loss: no curriculum.
+        """
+        span = self.config.schedule.path_curriculum
+        if self.progress() >= span or self.fitting_retardance():
+            return None
+        if self.path_range is None:
+            paths = np.array(dr.block_sum(length, samples)) / samples
+            paths = paths[paths > 0]
+            if paths.size == 0:
+                return None
+            self.path_range = (float(np.quantile(paths, 0.1)), float(paths.max()) * 1.01)
+        shortest, longest = self.path_range
+        return shortest * (longest / shortest) ** (self.progress() / span)
+
+    def _check_divergence(self, loss):
+        norm = math.sqrt(sum(float(dr.sum(dr.square(_flat(dr.grad(self.optimizer[k]))))[0])
+                             for k in self.optimizer.keys()))
+        reason = None
+        if not math.isfinite(loss):
+            reason = f"the loss is {loss}"
+        elif not math.isfinite(norm):
+            reason = f"the gradient norm is {norm}"
+        elif len(self.gradient_norms) >= 20 and norm > EXPLODING_FACTOR * np.median(self.gradient_norms[-20:]):
+            reason = (f"the gradient norm {norm:.3g} is {norm / np.median(self.gradient_norms[-20:]):.3g} times the "
+                      "recent median (exploding)")
+        if reason is None:
+            self.gradient_norms.append(norm)
+            return
+        self._diverged(reason)
+
+    def _require_sane_field(self):
+        """Raise :class:`DivergenceError` if the field holds NaN or inf, or has run away to stresses that
+        no image of the dataset could resolve (:data:`RUNAWAY_ORDERS_PER_PIXEL`): the intensity loss is
+        bounded, so a fit that flies off (a learning rate far too high) does not show in it."""
+        if not all(np.isfinite(np.array(value)).all() for value in self.field.parameters().values()):
+            self._diverged("the field's parameters hold NaN or inf")
+        if self.magnitude_points is None:
+            self.magnitude_points = metrics.evaluation_points(self.scene, specimen_shapes(self.scene),
+                                                              MAGNITUDE_POINTS)
+        largest = float(np.abs(sample(self.field, self.magnitude_points)).max(initial=0.0)) / self.field.stress_scale
+        limit = RUNAWAY_ORDERS_PER_PIXEL * max(self.dataset.resolution)
+        if not largest <= limit:
+            self._diverged(f"the field ran away to {largest:.3g} stress scales (a scale, {self.field.stress_scale:.3g} "
+                           f"MPa, gives about one fringe across the specimen), beyond the {limit:g} that "
+                           f"{max(self.dataset.resolution)}-pixel images could ever resolve")
+
+    def _diverged(self, reason):
+        kept = "no checkpoint was written yet"
+        if self.last_good is not None:
+            kept = f"the last good checkpoint (iteration {self.last_good}) is kept"
+            if self.output is not None:
+                kept += f" in {self.output / CHECKPOINT}"
+        raise DivergenceError(f"optimisation diverged at iteration {self.iteration}: {reason}; {kept}. Lower the "
+                              "learning_rate or the step_size")
+
+    def checkpoint(self):
+        self._require_sane_field()      # a checkpoint is a good state to come back to
+        self.last_good = self.iteration
+        if self.output is None:
+            return
+        self.output.mkdir(parents=True, exist_ok=True)
+        saved = Checkpoint(self.field, adam_moments(self.optimizer),
+                           {name: np.array(total) for name, total in self.iterate_sums.items()},
+                           self.iterates_averaged, self.iteration, self.seconds, self.history,
+                           self.rng.bit_generator.state, self.path_range)
+        saved.save(self.output / CHECKPOINT, self.config, self.dataset)
+
+    def restore(self, path):
+        saved = Checkpoint.load(path, self.config, self.dataset)
+        self.field = saved.field
+        self.optimizer = self._optimizer()
+        restore_adam_moments(self.optimizer, saved.adam)
+        self.iteration, self.seconds, self.history = saved.iteration, saved.seconds, saved.history
+        self.rng.bit_generator.state = saved.rng
+        self.path_range = saved.path_range
+        self.last_good = self.iteration
+        parameters = self.field.parameters()
+        self.iterate_sums = {name: type(parameters[name])(total) for name, total in saved.averages.items()}
+        self.iterates_averaged = saved.iterates_averaged
+
+    def result(self):
+        """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
+        if self.iterates_averaged:
+            self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
+        self._require_sane_field()
+        return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
+
+
+def _flat(values):
+    return values.array if isinstance(values, mi.TensorXf) else values
+
+

@@ -1,0 +1,46 @@
+"""What a reconstruction minimises: the intensities' L1 error, or the Two-step's generator error."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..physics import MEASUREMENTS
+from .rays import device_array
+
+
+def intensities(q, polariscopes=tuple(MEASUREMENTS.values())) -> list:
+    """The normalised intensities of ``polariscopes`` (default the nominal 16, in dataset channel order)."""
+    return [scope.intensity(q) for scope in polariscopes]
+
+
+def l1_loss(q, targets, pixel_samples: int = 1, weights=None, polariscopes=tuple(MEASUREMENTS.values())) -> mi.Float:
+    """Mean absolute error of the intensities of ``polariscopes`` against ``targets`` (N, 16).
+
+    ``q`` holds ``pixel_samples`` consecutive rays per target pixel; their
+    intensities are averaged first, as the camera integrates over its pixels.
+    ``weights`` (N, 0 or 1) selects the pixels that count.
+    """
+    targets = np.asarray(targets, dtype=np.float32)
+    total = 0.0
+    for channel, predicted in enumerate(intensities(q, polariscopes)):
+        if pixel_samples > 1:
+            predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
+        error = dr.abs(predicted - device_array(mi.Float, targets[:, channel]))
+        total = total + dr.sum(error if weights is None else error * weights)
+    count = len(targets) if weights is None else dr.maximum(dr.sum(weights), 1.0)
+    return total / (count * targets.shape[1])
+
+
+def generator_loss(state, targets, pixel_samples: int = 1) -> mi.Float:
+    """Mean squared error of the linear model's summed generator ``(b, c)`` against ``targets`` (N, 2).
+
+    The Two-step baseline's tomography: least squares on unwrapped data.
+    """
+    targets = np.asarray(targets, dtype=np.float32)
+    total = 0.0
+    for channel, predicted in enumerate(state[1:3]):
+        if pixel_samples > 1:
+            predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
+        total = total + dr.sum(dr.square(predicted - device_array(mi.Float, targets[:, channel])))
+    return total / len(targets)
