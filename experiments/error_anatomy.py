@@ -20,13 +20,14 @@ import numpy as np
 
 import mi_nest
 from mi_nest import occupancy
+from mi_nest.physics.tensors import COMPONENTS
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.checkpoints import load_field
 from mi_nest.reconstruct.fields import deviatoric_part
+from mi_nest.scene import specimen_bounds
 
 # Shares of the most stressed evaluation points whose part of the squared error is reported.
 TOP_SHARES = (0.01, 0.05, 0.2)
-COMPONENTS = ("xx", "yy", "zz", "yz", "zx", "xy")
 
 
 def error_shares(estimate, reference):
@@ -57,7 +58,7 @@ def floors(field, truth, scene, shapes, points, resolutions):
 
 def mid_plane(field, shapes, scene, samples=96):
     """Points on the plane through the specimen's centre normal to its thinnest side, and their inside mask."""
-    low, high = metrics.specimen_bounds(shapes)
+    low, high = specimen_bounds(shapes)
     normal = int(np.argmin(high - low))
     axes = [a for a in range(3) if a != normal]
     u, v = (np.linspace(low[a], high[a], samples) for a in axes)

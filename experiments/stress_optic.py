@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import mi_nest
 from mi_nest.dataset import CameraModel
-from mi_nest.dataset.simulate import specimen_media
+from mi_nest.scene import specimen_media
 
 import common
 

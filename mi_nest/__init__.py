@@ -42,7 +42,8 @@ if mi.variant() is None:
 _register_plugins()
 mi.detail.add_variant_callback(_on_variant_change)
 
-from .render import RenderResult, SceneError, load_scene, render, scene_path  # noqa: E402
+from .render import RenderResult, render  # noqa: E402
+from .scene import SceneError, load_scene, scene_path  # noqa: E402
 from .dataset import Dataset, DatasetError  # noqa: E402
 from .reconstruct import DivergenceError, Reconstruction, optimize  # noqa: E402
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import load_scene, render
+from .render import render
+from .scene import load_scene
 from .physics import MEASUREMENTS
 
 # (label, method, points) of every curve.

@@ -12,13 +12,7 @@ from . import interrupts
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo, write_render
 from .reconstruct import DivergenceError
 from .rig.errors import RigError
-
-
-def _definition(text):
-    name, sep, value = text.partition("=")
-    if not sep or not name:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got '{text}'")
-    return name, value
+from .scene import parse_define
 
 
 # `mi-nest reconstruct --minutes` without --iterations: the clock alone ends the run.
@@ -44,7 +38,7 @@ def _parser():
     render = commands.add_parser("render", help="render a scene to a multichannel EXR")
     render.add_argument("scene", help="scene XML file, or the name of a shipped scene")
     render.add_argument("-o", "--output", required=True, help="output EXR path")
-    render.add_argument("-D", dest="defines", action="append", type=_definition, default=[],
+    render.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     render.add_argument("--png", help="also write a PNG preview of the main channel")
     render.add_argument("--spp", type=int, help="samples per pixel (overrides the scene)")
@@ -61,7 +55,7 @@ def _parser():
     export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti), "
                                       "or a scene (XML file or shipped name) whose specimens are sampled on grids")
     export.add_argument("-o", "--output", required=True, help="output .vtu path")
-    export.add_argument("-D", dest="defines", action="append", type=_definition, default=[],
+    export.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
     export.add_argument("--resolution", type=int, default=64,
                         help="grid nodes along the longest axis when sampling (default: 64)")
@@ -112,7 +106,7 @@ def _parser():
     simulate.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     simulate.add_argument("--test-fraction", type=float, default=0.2, help="rotations held out (default: 0.2)")
     simulate.add_argument("--float", action="store_true", help="store float32 instead of half floats")
-    simulate.add_argument("-D", dest="defines", action="append", default=[], type=_definition, metavar="NAME=VALUE",
+    simulate.add_argument("-D", dest="defines", action="append", default=[], type=parse_define, metavar="NAME=VALUE",
                           help="set a scene $parameter")
 
     show = commands.add_parser("show", help="contact sheet PNG of a dataset, or a preview PNG of a mesh stress "
@@ -128,7 +122,7 @@ def _parser():
     reconstruct.add_argument("-o", "--output", required=True, help="result directory (checkpoints, field, renders)")
     reconstruct.add_argument("--scene", help="scene with the specimen, material and camera (default: the scene the "
                                              "dataset was simulated from, with its defines)")
-    reconstruct.add_argument("-D", dest="defines", action="append", type=_definition, default=[],
+    reconstruct.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")

@@ -8,7 +8,8 @@ from pathlib import Path
 from .dataset import Dataset, SimulationSettings, simulate
 from .reconstruct import REGULARISED, Reconstruction, optimize
 from .reconstruct.outputs import write_test_view, write_truth_beside_reconstruction
-from .render import RenderResult, load_scene, render, scene_path
+from .render import RenderResult, render
+from .scene import load_scene, scene_path
 
 DEFAULT_SCENE = "disk_compression"
 # The demo's loop: a load whose fringes a 48x48 camera resolves, spread over a 4 mm contact as platens do (point

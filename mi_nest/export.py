@@ -3,15 +3,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
 from .arguments import whole_number
 from .io.grid import StressGrid, grid_nodes
 from .io.vtk import write_grid_vtu
+from .scene import specimen_shapes
 
 
-def specimen_grids(scene, resolution=64):
-    """One :class:`StressGrid` per shape with a ``stress`` medium, over the shape's bounding box.
+def specimen_grids(scene: mi.Scene, resolution: int = 64) -> list[StressGrid]:
+    """One :class:`StressGrid` per specimen (a shape with a ``stress`` medium), over its bounding box.
 
     Samples the medium's field at the grid nodes exactly as the renderer evaluates
     it (analytic models included); nodes outside the shape carry the field's value
@@ -20,10 +22,8 @@ def specimen_grids(scene, resolution=64):
     # Two nodes per axis at least: one would be a grid of zero spacing, written as a single cell.
     resolution = whole_number("resolution", resolution, minimum=2)
     grids = []
-    for shape in scene.shapes():
+    for shape in specimen_shapes(scene):
         medium = shape.interior_medium()
-        if medium is None or not hasattr(medium, "sample"):
-            continue
         box = shape.bbox()
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
         spacing = (hi - lo).max() / (resolution - 1)
@@ -33,11 +33,9 @@ def specimen_grids(scene, resolution=64):
     return grids
 
 
-def export_scene_vtu(scene, output, resolution=64):
+def export_scene_vtu(scene: mi.Scene, output: str | Path, resolution: int = 64) -> list[Path]:
     """Write each specimen's field as ``output`` (``output-<i>.vtu`` when there are several)."""
     grids = specimen_grids(scene, resolution)
-    if not grids:
-        raise ValueError("the scene has no shape with a stress medium to export")
     output = Path(output)
     paths = [output] if len(grids) == 1 else [output.with_name(f"{output.stem}-{i}{output.suffix}")
                                               for i in range(len(grids))]

@@ -6,77 +6,13 @@ import resource
 import time
 import warnings
 from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
 
 from . import __version__, interrupts
 from .arguments import whole_number
-
-
-class SceneError(ValueError):
-    """A scene file cannot be found, parsed or rendered."""
-
-
-def scene_path(name: str) -> Path:
-    """Path of a shipped scene, by name (``"disk_compression"``) or file name."""
-    file_name = name if name.endswith(".xml") else f"{name}.xml"
-    path = Path(resources.files("mi_nest.scenes") / file_name)
-    if not path.is_file():
-        shipped = sorted(p.stem for p in Path(resources.files("mi_nest.scenes")).glob("*.xml"))
-        raise SceneError(f"no shipped scene '{name}'; available: {shipped}")
-    return path
-
-
-def scene_file(path) -> Path:
-    """The scene XML a path or shipped scene name stands for."""
-    path = Path(path)
-    if not path.exists() and len(path.parts) == 1:
-        path = scene_path(path.name)
-    if not path.is_file():
-        raise SceneError(f"scene file not found: {path}")
-    return path.resolve()
-
-
-def load_scene(path, **defaults):
-    """Load a scene XML (a path, or the name of a shipped scene) filling ``$name`` defaults.
-
-    Embree's robust intersections are switched on whatever the file says (a
-    flag in an included file is lost, too): without them a ray through a mesh
-    edge can miss both triangles, which the walk only mends by querying again.
-    The scene's id is its file, so that messages can name it.
-    """
-    path = scene_file(path)
-    try:
-        scene = _load_robust(path, {k: str(v) for k, v in defaults.items()})
-    except Exception as error:
-        raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
-    if not scene.id():
-        scene.set_id(str(path))
-    return scene
-
-
-def _load_robust(path, defaults):
-    """``mi.load_file`` with the scene's ``embree_use_robust_intersections`` set."""
-    config = mi.parser.ParserConfig(mi.variant())
-    # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
-    # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.
-    config.parallel = False
-    previous = mi.file_resolver()
-    resolver = mi.FileResolver(previous)
-    resolver.prepend(str(path.parent))     # relative file names resolve beside the scene, as mi.load_file does
-    mi.set_file_resolver(resolver)
-    try:
-        state = mi.parser.parse_file(config, str(path), **defaults)
-        if state.root.type == mi.ObjectType.Scene:
-            state.root.props["embree_use_robust_intersections"] = True
-        mi.parser.transform_all(config, state)
-        return mi.parser.instantiate(config, state)
-    finally:
-        mi.set_file_resolver(previous)
-
+from .scene import SceneError, photoelastic_integrator
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
 # 5.6e4 orders and 0.08 to 0.26 off at 5.6e5 (float32 phases); real specimens show a few hundred.
@@ -110,13 +46,6 @@ def _check_image(scene, image, names, passes):
         warnings.warn(f"{name}: the camera sees no specimen (path.length is 0 in every pixel), so the image is the "
                       "empty polariscope's; check the camera pose (origin, target, to_world) and the specimen's "
                       "position, size and units (mm)", RuntimeWarning, stacklevel=3)
-
-
-def _without_traceback(message):
-    """Mitsuba embeds a plugin's Python traceback in its error; keep location and cause."""
-    lines = [line for line in message.splitlines()
-             if not line.startswith(("Traceback (most recent call last)", "  File "))]
-    return " ".join(line.strip() for line in lines if line.strip())
 
 
 @dataclass
@@ -199,10 +128,7 @@ def render_plan(scene, spp=None, passes=None):
     """``(spp, passes)`` of a :func:`render` of ``scene``, checked: a photoelastic integrator, whole numbers,
     and an image that is not empty and fits in the memory this process may allocate."""
     sensor = scene.sensors()[0]
-    integrator = scene.integrator()
-    if not hasattr(integrator, "check_scene"):
-        raise SceneError(f'the scene\'s integrator is {integrator.class_name()}; mi_nest renders with '
-                         '<integrator type="photoelastic">')
+    integrator = photoelastic_integrator(scene)
     spp = whole_number("spp", sensor.sampler().sample_count() if spp is None else spp)
     if passes is None:
         passes = max(p for p in range(1, min(spp, 16) + 1) if spp % p == 0)

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from .polariscope_light import _angle
+from .properties import angle_property
 
 _PROJECTIONS = ("orthographic", "perspective")
 _OWN_PROPERTIES = ("projection", "analyzer", "qwp")
@@ -59,8 +59,8 @@ class PolariscopeCamera(mi.Sensor):
         if projection not in _PROJECTIONS:
             raise ValueError(f"polariscope: unknown projection '{projection}'; choose one of {_PROJECTIONS}")
         self.projection = projection
-        self.analyzer = _angle(props, "analyzer", 0.0)
-        self.qwp = _angle(props, "qwp", None)
+        self.analyzer = angle_property(props, "analyzer", 0.0)
+        self.qwp = angle_property(props, "qwp", None)
         camera = {key: props[key] for key in props.keys()
                   if key not in _OWN_PROPERTIES and not isinstance(props[key], (mi.Film, mi.Sampler))}
         camera.update(type=projection, film=self.film(), sampler=self.sampler())

@@ -4,6 +4,8 @@ import math
 
 import mitsuba as mi
 
+from .properties import angle_property
+
 
 class PolariscopeLight(mi.Emitter):
     r"""
@@ -46,8 +48,8 @@ class PolariscopeLight(mi.Emitter):
 
     def __init__(self, props):
         super().__init__(props)
-        self.polarizer = _angle(props, "polarizer", 90.0)
-        self.qwp = _angle(props, "qwp", None)
+        self.polarizer = angle_property(props, "polarizer", 90.0)
+        self.qwp = angle_property(props, "qwp", None)
         self.radiance = float(props.get("radiance", 1.0))
         if not (math.isfinite(self.radiance) and self.radiance >= 0):
             raise ValueError(f"polariscope_light: 'radiance' must be finite and >= 0, got {self.radiance}")
@@ -55,15 +57,6 @@ class PolariscopeLight(mi.Emitter):
 
     def to_string(self):
         return f"PolariscopeLight[polarizer={self.polarizer}, qwp={self.qwp}, radiance={self.radiance}]"
-
-
-def _angle(props, name, default):
-    if name not in props:
-        return default
-    value = float(props[name])
-    if not math.isfinite(value):
-        raise ValueError(f"polariscope: angle '{name}' must be finite, got {value}")
-    return value
 
 
 mi.register_emitter("polariscope_light", lambda props: PolariscopeLight(props))

@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from mi_nest.cli import main
-from mi_nest.dataset import CameraModel, Dataset, DatasetError, SimulationSettings, pose, simulate
+from mi_nest.dataset import CameraModel, Dataset, DatasetError, SimulationSettings, simulate
 from mi_nest.dataset.camera import MOSAIC, mosaic_mask
 from mi_nest.dataset.format import rotation_header
 from mi_nest.dataset.masks import agreement, linear_settings, min_dolp
-from mi_nest.dataset.simulate import reference_pose
 from mi_nest.dataset.schedule import Rotation, angles, camera_to_world, rotation_grid
 from mi_nest.io.exr import write_channels
 from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.aliasing import ALIASED_FRACTION, NYQUIST
+from mi_nest.scene import pose, reference_pose
 
 SMALL = SimulationSettings(azimuths=4, elevations=4, res=32, spp=1)
 
@@ -90,7 +90,7 @@ def test_mosaic_is_the_imx250mzr_cell_and_bilinear_demosaicking_keeps_smooth_ima
 
 
 def test_free_space_shows_full_linear_polarisation_in_the_linear_settings():
-    assert linear_settings() == [("45", "0"), ("45", "45"), ("90", "0")]
+    assert linear_settings() == [(45, 0), (45, 45), (90, 0)]
     identity = su2.identity(np.zeros((2, 2)))
     free = {name: scope.intensity(identity) for name, scope in MEASUREMENTS.items()}
     np.testing.assert_allclose(min_dolp(free), 1.0, atol=1e-12)

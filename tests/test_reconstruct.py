@@ -16,6 +16,7 @@ from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, Opti
 from mi_nest.reconstruct import loop, metrics
 from mi_nest.reconstruct.evaluation import dataset_loss
 from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
+from mi_nest.scene import specimen_bounds
 
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
@@ -36,8 +37,8 @@ def _scene():
 
 @pytest.mark.parametrize("name", ["disk_compression", "twisted_block"])    # orthographic, perspective
 def test_batch_rays_are_the_camera_s_rays_at_each_rotation(name, tmp_path):
-    from mi_nest.dataset.simulate import pose, reference_pose
     from mi_nest.reconstruct.rays import ViewRays
+    from mi_nest.scene import pose, reference_pose
     simulate(name, tmp_path, TINY, progress=False)
     dataset = mi_nest.Dataset(tmp_path)
     scene = mi_nest.load_scene(name, res=8)
@@ -229,7 +230,7 @@ def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
     shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
     truth = shapes[0].interior_medium().field
     points = metrics.evaluation_points(scene, shapes, 20)
-    field = make_field(FieldConfig(kind="grid", resolution=8), *metrics.specimen_bounds(shapes), 1.0)
+    field = make_field(FieldConfig(kind="grid", resolution=8), *specimen_bounds(shapes), 1.0)
     sampled = metrics.representation_floor(field, truth, points)
     best = metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
     assert 0 < best < 0.8 * sampled

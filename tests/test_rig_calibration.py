@@ -86,7 +86,7 @@ def test_the_twin_sees_what_the_renderer_renders():
     state = {"qwp2": 0.0}
     twin = SimulatedCamera(jones_of, lambda: (20.0, 10.0, state["qwp2"]), Optics(), resolution=(24, 24))
     from mi_nest.dataset.schedule import Rotation, camera_to_world
-    from mi_nest.dataset.simulate import pose, reference_pose
+    from mi_nest.scene import pose, reference_pose
     scene = mi_nest.load_scene("disk_compression", res=24, spp=1, load=150, contact_width=4)
     pose(scene, camera_to_world(reference_pose(scene), Rotation(0, 20.0, 10.0, "train"), [0.0, 0.0, 0.0]))
     with warnings.catch_warnings():

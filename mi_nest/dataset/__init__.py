@@ -3,7 +3,7 @@ from .camera import CameraModel
 from .format import DatasetError
 from .loader import Dataset
 from .masks import agreement, dolp_mask
-from .simulate import SimulationReport, SimulationSettings, pose, simulate
+from .simulate import SimulationReport, SimulationSettings, simulate
 
 __all__ = ["CameraModel", "Dataset", "DatasetError", "SimulationReport", "SimulationSettings", "agreement",
-           "dolp_mask", "pose", "simulate"]
+           "dolp_mask", "simulate"]

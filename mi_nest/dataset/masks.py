@@ -15,17 +15,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import binary_fill_holes
 
-from ..physics import MEASUREMENTS, Polariscope, su2
+from ..physics import su2
+from ..physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER, Polariscope,
+                                  measurement_name)
 
-ANALYSERS = (0, 45, 90, 135)
 
-
-def linear_settings():
+def linear_settings() -> list[tuple[int, int]]:
     """The (b1, b2) settings whose free-space output is linearly polarised."""
     identity = su2.identity(np.zeros(1))
-    settings = sorted({tuple(name.split(".")[1:3]) for name in MEASUREMENTS})
-    return [s for s in settings if dolp([Polariscope(90.0, float(s[0]), float(s[1]), float(a)).intensity(identity)
-                                         for a in ANALYSERS])[0] > 0.999]
+    return [(b1, b2) for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS
+            if dolp([Polariscope(POLARIZER, b1, b2, a).intensity(identity) for a in ANALYZERS])[0] > 0.999]
 
 
 def dolp(by_analyser):
@@ -37,7 +36,7 @@ def dolp(by_analyser):
 
 def min_dolp(channels: dict):
     """The smallest DoLP over the linear-output settings, per pixel."""
-    values = [dolp([channels[f"pol.{b1}.{b2}.{a}"] for a in ANALYSERS]) for b1, b2 in linear_settings()]
+    values = [dolp([channels[measurement_name(b1, b2, a)] for a in ANALYZERS]) for b1, b2 in linear_settings()]
     return np.min(values, axis=0)
 
 

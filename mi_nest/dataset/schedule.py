@@ -22,6 +22,22 @@ class Rotation:
     split: str          # "train" or "test"
 
 
+@dataclass(frozen=True)
+class RotationSchedule:
+    """The rotations of a dataset, simulated or captured: an azimuth x elevation grid (:func:`rotation_grid`)
+    with a seeded share held out for testing."""
+    azimuths: int = 32
+    elevations: int = 32
+    azimuth_range: float = 180.0     # degrees
+    elevation_range: float = 180.0   # degrees
+    test_fraction: float = 0.2       # held out for evaluation (the paper: 80 of 400)
+    split_seed: int = 0
+
+    def rotations(self) -> list[Rotation]:
+        return rotation_grid(self.azimuths, self.elevations, self.azimuth_range, self.elevation_range,
+                             self.test_fraction, self.split_seed)
+
+
 def angles(count, span):
     """``count`` angles (degrees) centred on 0 over ``span``: cell centres, so 180 degrees
     never holds both a view and its reverse."""

@@ -20,24 +20,21 @@ from ..arguments import whole_number
 from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
-from ..render import SceneError, load_scene, render, render_plan
-from ..render import scene_file as resolved_scene_file
+from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
+from ..render import render, render_plan
+from ..scene import (SceneError, camera_of, load_scene, polariscope_light, pose, reference_pose, scene_file,
+                     specimen_bounds, specimen_media, specimen_shapes)
 from . import format as fmt
 from .camera import CameraModel
 from .masks import agreement, dolp_mask
-from .schedule import camera_to_world, rotation_grid
+from .schedule import RotationSchedule, camera_to_world
 
 
 @dataclass(frozen=True)
-class SimulationSettings:
-    azimuths: int = 32
-    elevations: int = 32
-    azimuth_range: float = 180.0
-    elevation_range: float = 180.0
+class SimulationSettings(RotationSchedule):
+    """The rotations of a simulated dataset and how each is rendered, captured and stored."""
     res: int | None = None           # the scene's $res; None keeps the scene's own
     spp: int | None = None
-    test_fraction: float = 0.2       # held out for evaluation (the paper: 80 of 400)
-    split_seed: int = 0
     camera: CameraModel = field(default_factory=CameraModel)
     dolp_threshold: float = 0.95
     half: bool = True                # half-float EXR channels
@@ -67,55 +64,20 @@ class SimulationReport:
                 f"against the exact occupancy: mean IoU {self.mask_iou:.3f}")
 
 
-def camera_of(scene):
-    sensor = scene.sensors()[0]
-    if not hasattr(sensor, "camera"):
-        raise SceneError(f'datasets need <sensor type="polariscope">, the scene has {sensor.class_name()}')
-    return sensor.camera
-
-
-def pose(scene, to_world):
-    """Move the scene's polariscope camera to ``to_world`` (4x4)."""
-    params = mi.traverse(camera_of(scene))
-    params["to_world"] = mi.Transform4f(np.asarray(to_world, dtype=np.float32))
-    params.update()
-
-
-def reference_pose(scene):
-    return np.array(mi.traverse(camera_of(scene))["to_world"].matrix, dtype=np.float64).reshape(4, 4)
-
-
-def specimen_shapes(scene):
-    shapes = [s for s in scene.shapes() if s.interior_medium() is not None
-              and hasattr(s.interior_medium(), "phase_tensor")]
-    if not shapes:
-        raise SceneError("the scene has no specimen (a shape with a stress medium inside)")
-    return shapes
-
-
-def specimen_bounds(shapes):
-    """``(low, high)``: the bounding box of the specimen ``shapes``, as NumPy arrays (mm)."""
-    return (np.min([np.array(s.bbox().min) for s in shapes], axis=0),
-            np.max([np.array(s.bbox().max) for s in shapes], axis=0))
-
-
-def specimen_media(scene):
-    """The distinct stress media of the scene's specimens."""
-    return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
-
-
-def _index(scene, scene_file, defines, settings, rotations):
+def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: SimulationSettings) -> dict:
+    """The ``dataset.json`` of ``settings``' rotations of ``scene`` (loaded from ``source`` with ``defines``),
+    before any rotation is on disk; acquisitions start from it too."""
     shapes = specimen_shapes(scene)
     low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
     media = specimen_media(scene)
     film = scene.sensors()[0].film()
-    light = next(e for e in scene.emitters() if hasattr(e, "polarizer"))
+    light = polariscope_light(scene)
     reference = reference_pose(scene)
     return {
         "format": fmt.FORMAT, "version": fmt.VERSION, "complete": False,
         "software": {"mi_nest": __version__, "mitsuba": mi.__version__},
-        "source": {"kind": "simulated", "scene": str(resolved_scene_file(scene_file)), "defines": dict(defines)},
+        "source": {"kind": "simulated", "scene": str(scene_file(source)), "defines": dict(defines)},
         "units": fmt.UNITS,
         "resolution": [int(film.size()[0]), int(film.size()[1])],
         "spp": int(settings.spp or scene.sensors()[0].sampler().sample_count()),
@@ -123,8 +85,8 @@ def _index(scene, scene_file, defines, settings, rotations):
         "specimen_center": center.tolist(),
         "wavelength": sorted({m.wavelength for m in media}),
         "stress_optic_coefficient": sorted({m.stress_optic_coefficient for m in media}),
-        "polariscope": {"polarizer": float(light.polarizer), "input_qwp": [45, 90], "output_qwp": [0, 45],
-                        "analyzer": [0, 45, 90, 135]},
+        "polariscope": {"polarizer": float(light.polarizer), "input_qwp": list(INPUT_QWP_SETTINGS),
+                        "output_qwp": list(OUTPUT_QWP_SETTINGS), "analyzer": list(ANALYZERS)},
         "channels": list(fmt.CHANNELS),
         "mask_channels": list(fmt.MASK_CHANNELS),
         "camera_model": settings.camera.to_dict(),
@@ -132,7 +94,8 @@ def _index(scene, scene_file, defines, settings, rotations):
         "split": {"test_fraction": settings.test_fraction, "seed": settings.split_seed},
         "rotations": [{"index": r.index, "azimuth": r.azimuth, "elevation": r.elevation, "split": r.split,
                        "file": fmt.rotation_file(r.index),
-                       "to_world": camera_to_world(reference, r, center).round(9).tolist()} for r in rotations],
+                       "to_world": camera_to_world(reference, r, center).round(9).tolist()}
+                      for r in settings.rotations()],
     }
 
 
@@ -152,9 +115,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
     render_plan(scene, settings.spp)     # an image that cannot be rendered is refused before anything is written
-    rotations = rotation_grid(settings.azimuths, settings.elevations, settings.azimuth_range,
-                              settings.elevation_range, settings.test_fraction, settings.split_seed)
-    index = _index(scene, scene_file, defines, settings, rotations)
+    index = dataset_index(scene, scene_file, defines, settings)
     if settings.res is not None and index["resolution"] != [settings.res, settings.res]:
         raise SceneError(f"{scene_file}: --res {settings.res} had no effect (the scene's film is "
                          f"{index['resolution']}); give the film width/height as $res")
@@ -169,7 +130,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     fmt.write_index(output, index)
 
     from tqdm import tqdm
-    bar = tqdm(total=len(rotations), desc="simulate", unit="rotation", disable=not progress)
+    bar = tqdm(total=len(index["rotations"]), desc="simulate", unit="rotation", disable=not progress)
     rendered = kept = 0
     render_seconds = write_seconds = 0.0
     with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends

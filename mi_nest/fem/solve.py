@@ -31,6 +31,7 @@ import scipy.sparse as sp
 
 from ..fields.mesh import TetMeshStress
 from ..io.mesh import save_mesh_stress
+from ..physics.tensors import von_mises
 from .config import FemError, number, parse_fields
 from .loads import check_rigid_modes, constraints, load_vector, rigid_body_modes
 
@@ -128,13 +129,11 @@ class FemResult:
 
     def summary(self):
         """The report plus where the stress and the displacement peak."""
-        xx, yy, zz, yz, zx, xy = self.field.stress.astype(np.float64).T
-        von_mises = np.sqrt(0.5 * ((xx - yy) ** 2 + (yy - zz) ** 2 + (zz - xx) ** 2)
-                            + 3.0 * (yz ** 2 + zx ** 2 + xy ** 2))
+        equivalent = von_mises(self.field.stress)
         peak = int(np.argmax(von_mises))
         moved = np.linalg.norm(self.displacement, axis=1)
         at = ", ".join(f"{v:.4g}" for v in self.field.nodes[peak])
-        return (self.report.summary() + f"\nvon Mises stress up to {von_mises[peak]:.4g} MPa (node at {at}); "
+        return (self.report.summary() + f"\nvon Mises stress up to {equivalent[peak]:.4g} MPa (node at {at}); "
                 f"displacement up to {moved.max():.4g} mm")
 
 

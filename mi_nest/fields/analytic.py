@@ -14,7 +14,7 @@ import numpy as np
 from dataclasses import dataclass, field
 
 from ..physics.backend import ops
-from ..physics.projection import add, symmetric_outer
+from ..physics.tensors import add, symmetric_outer
 from .base import (FieldParameterError, StressField, orthonormal_frame, require_finite,
                    require_positive, unit_vector)
 

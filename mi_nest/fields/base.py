@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+from ..physics.tensors import cross
+
 
 class StressField:
     """A 3D stress tensor field in MPa over scene coordinates in mm.
@@ -68,7 +70,4 @@ def orthonormal_frame(name_axis, axis, name_ref, reference):
     if length < 1e-6:
         raise FieldParameterError(f"parameter '{name_ref}' must not be parallel to '{name_axis}'")
     e1 = tuple(x / length for x in e1)
-    e2 = (axis[1] * e1[2] - axis[2] * e1[1],
-          axis[2] * e1[0] - axis[0] * e1[2],
-          axis[0] * e1[1] - axis[1] * e1[0])
-    return e1, e2, axis
+    return e1, cross(axis, e1), axis

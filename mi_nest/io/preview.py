@@ -30,7 +30,7 @@ def mesh_preview_figure(nodes, surface, stress, boundary=None, title=""):
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from .vtk import von_mises
+    from ..physics.tensors import von_mises
     nodes = np.asarray(nodes, dtype=np.float64)
     stress_on_faces = von_mises(np.asarray(stress, dtype=np.float64))[surface].mean(axis=1)
     figure = plt.figure(figsize=(7, 6), dpi=100)

@@ -10,23 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..physics.tensors import principal_stresses, stress_matrices, von_mises
 from .grid import grid_nodes
-
-
-def stress_matrices(stress6):
-    """(N, 6) in 3D-TSV order (xx yy zz yz zx xy) -> (N, 3, 3) symmetric tensors."""
-    xx, yy, zz, yz, zx, xy = np.asarray(stress6, dtype=np.float64).T
-    return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1), np.stack([zx, yz, zz], -1)], -2)
-
-
-def principal_stresses(stress6):
-    """(N, 3) principal stresses, largest first."""
-    return np.linalg.eigvalsh(stress_matrices(stress6))[:, ::-1]
-
-
-def von_mises(stress6):
-    xx, yy, zz, yz, zx, xy = np.asarray(stress6, dtype=np.float64).T
-    return np.sqrt(0.5 * ((xx - yy) ** 2 + (yy - zz) ** 2 + (zz - xx) ** 2) + 3.0 * (xy ** 2 + yz ** 2 + zx ** 2))
 
 
 def point_data(stress6):

@@ -115,14 +115,23 @@ def _coefficients(scope):
     return tuple(terms)
 
 
-def measurement_name(input_qwp, output_qwp, analyzer):
+def measurement_name(input_qwp: float, output_qwp: float, analyzer: float) -> str:
+    """The channel name ``pol.<b1>.<b2>.<a2>`` of a measurement."""
     return f"pol.{input_qwp:g}.{output_qwp:g}.{analyzer:g}"
 
 
-# The 16 measurements of the paper's rig: beta_1 x beta_2 x alpha_2 with alpha_1 = 90.
+# The settings (degrees) of the paper's rig, the one table every part of mi_nest builds on: the light's
+# polariser LP1 (alpha_1), QWP1 (beta_1, turned by hand), QWP2 (beta_2, on a motor) and the camera's four
+# micro-polariser analysers (alpha_2). Whole degrees, as dataset.json and the rig's frame files record them.
+POLARIZER = 90.0
+INPUT_QWP_SETTINGS = (45, 90)
+OUTPUT_QWP_SETTINGS = (0, 45)
+ANALYZERS = (0, 45, 90, 135)
+
+# The 16 measurements: beta_1 x beta_2 x alpha_2, in this order.
 MEASUREMENTS = {
-    measurement_name(b1, b2, a2): Polariscope(90.0, float(b1), float(b2), float(a2))
-    for b1 in (45, 90) for b2 in (0, 45) for a2 in (0, 45, 90, 135)
+    measurement_name(b1, b2, a2): Polariscope(POLARIZER, float(b1), float(b2), float(a2))
+    for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS for a2 in ANALYZERS
 }
 
 

@@ -5,25 +5,7 @@ vectors as 3-sequences of components (a Dr.Jit ``Vector3f`` or a tuple of arrays
 """
 from __future__ import annotations
 
-from .backend import ops
-
-COMPONENTS = ("xx", "yy", "zz", "yz", "zx", "xy")
-
-
-def dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0])
-
-
-def normalize(a):
-    xp = ops(*a)
-    inv = 1.0 / xp.sqrt(dot(a, a))
-    return tuple(x * inv for x in a)
+from .tensors import cross, dot, normalize
 
 
 def transverse_basis(k, right):
@@ -62,15 +44,3 @@ def apply_coefficients(coefficients, s6):
 def project(s6, u, v):
     """Transverse stress difference ``(s_uu - s_vv, 2 s_uv)``: all the optics sees."""
     return apply_coefficients(projection_coefficients(u, v), s6)
-
-
-def symmetric_outer(scale, a, b):
-    """6-tuple of ``scale * (a b^T + b a^T) / 2``."""
-    return (scale * a[0] * b[0], scale * a[1] * b[1], scale * a[2] * b[2],
-            0.5 * scale * (a[1] * b[2] + a[2] * b[1]),
-            0.5 * scale * (a[2] * b[0] + a[0] * b[2]),
-            0.5 * scale * (a[0] * b[1] + a[1] * b[0]))
-
-
-def add(*tensors):
-    return tuple(sum(parts) for parts in zip(*tensors))

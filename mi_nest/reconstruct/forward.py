@@ -5,7 +5,7 @@ import contextlib
 
 import mitsuba as mi
 
-from ..dataset.simulate import specimen_media
+from ..scene import specimen_media
 from .config import OptimizeConfig
 from .fields import TrainableField, grid_shape
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import interrupts
 from ..fields.base import sample
-from ..dataset.simulate import specimen_shapes
+from ..scene import specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .fields import choose_kind, make_field, refined

@@ -7,9 +7,10 @@ import mitsuba as mi
 import numpy as np
 
 from .. import occupancy
-from ..dataset.simulate import specimen_bounds
 from ..fields.base import sample
 from ..io.grid import grid_nodes
+from ..physics.tensors import principal_difference
+from ..scene import specimen_bounds
 from .fields import deviatoric_part
 
 # Points per axis of the evaluation lattice along the longest side of the specimen.
@@ -39,14 +40,6 @@ def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
 def tensor_norm(s6):
     """Frobenius norm of symmetric tensors in 6-vector form (shear components count twice)."""
     return np.sqrt((s6[..., :3] ** 2).sum(-1) + 2.0 * (s6[..., 3:] ** 2).sum(-1))
-
-
-def principal_difference(s6):
-    """``sigma_max - sigma_min`` of ``(N, 6)`` tensors."""
-    xx, yy, zz, yz, zx, xy = np.moveaxis(np.asarray(s6, dtype=np.float64), -1, 0)
-    matrices = np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1), np.stack([zx, yz, zz], -1)], -2)
-    eigenvalues = np.linalg.eigvalsh(matrices)
-    return eigenvalues[..., -1] - eigenvalues[..., 0]
 
 
 def stress_errors(field, truth, points) -> StressErrors:

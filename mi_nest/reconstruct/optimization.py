@@ -17,10 +17,9 @@ import numpy as np
 
 from .. import interrupts
 from ..dataset import Dataset
-from ..dataset.simulate import specimen_bounds, specimen_media, specimen_shapes
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
-from ..render import load_scene
+from ..scene import load_scene, specimen_bounds, specimen_media, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .config import OptimizeConfig

@@ -4,7 +4,7 @@ from __future__ import annotations
 import mitsuba as mi
 import numpy as np
 
-from ..render import SceneError
+from ..scene import SceneError, polariscope_camera
 
 
 def device_array(kind, values):
@@ -33,9 +33,7 @@ class ViewRays:
 
     def __init__(self, scene, dataset):
         self.dataset = dataset
-        self.sensor = scene.sensors()[0]
-        if not hasattr(self.sensor, "camera"):
-            raise SceneError('reconstruction needs the scene\'s <sensor type="polariscope">')
+        self.sensor = polariscope_camera(scene)
         size = tuple(int(x) for x in self.sensor.film().size())
         if size != tuple(dataset.resolution):
             raise SceneError(f"the scene's film is {size[0]}x{size[1]}, the dataset's images "

@@ -31,19 +31,19 @@ import os
 import sys
 import warnings
 import zipfile
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..dataset import format as fmt
 from ..dataset.camera import CameraModel
-from ..dataset.masks import ANALYSERS, dolp_mask
+from ..dataset.masks import dolp_mask
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
 from ..io.exr import write_channels
 from ..io.lock import locked_directory, other_entries
-from ..physics.polariscope import measurement_name
+from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, measurement_name
 from . import handedness
 from .calibration import Exposure, expected_exposures, fit
 from .errors import CommunicationError, RigError
@@ -54,8 +54,6 @@ JOURNAL = "journal.jsonl"
 JOURNAL_FORMAT = "mi_nest.acquisition"
 JOURNAL_VERSION = 1
 FRAMES = "frames"
-QWP1_SETTINGS = (45.0, 90.0)
-QWP2_SETTINGS = (0.0, 45.0)
 
 
 class AcquisitionError(RigError):
@@ -82,7 +80,8 @@ class Frame:
 def schedule(config):
     """Every frame in capture order: QWP1 (by hand) outermost, then rotations, then QWP2."""
     rotations = config.schedule.rotations()
-    frames = [(rotation, qwp1, qwp2) for qwp1 in QWP1_SETTINGS for rotation in rotations for qwp2 in QWP2_SETTINGS]
+    frames = [(rotation, qwp1, qwp2) for qwp1 in INPUT_QWP_SETTINGS for rotation in rotations
+              for qwp2 in OUTPUT_QWP_SETTINGS]
     return [Frame(number, *frame) for number, frame in enumerate(frames)]
 
 
@@ -119,8 +118,8 @@ def dry_run(config, out=print, shown=6):
     out(f"{len(rotations)} rotations ({config.schedule.azimuths} azimuths over {config.schedule.azimuth_range:g} deg "
         f"x {config.schedule.elevations} elevations over {config.schedule.elevation_range:g} deg; "
         f"{sum(r.split == 'test' for r in rotations)} held out for testing)")
-    out(f"{len(frames)} frames = {len(QWP1_SETTINGS)} QWP1 settings (turned by hand) x {len(rotations)} rotations x "
-        f"{len(QWP2_SETTINGS)} QWP2 settings; {len(frames) * len(ANALYSERS)} analyser images, "
+    out(f"{len(frames)} frames = {len(INPUT_QWP_SETTINGS)} QWP1 settings (turned by hand) x {len(rotations)} "
+        f"rotations x {len(OUTPUT_QWP_SETTINGS)} QWP2 settings; {len(frames) * len(ANALYZERS)} analyser images, "
         f"{len(fmt.CHANNELS)} channels per rotation")
     out("calibration: " + ("none (nominal angles)" if optics is None else
                            f"{config.calibration} (QWP1 offset {optics.qwp1_offset:.3f} deg, "
@@ -182,26 +181,22 @@ class TwinBackend:
         clock.sleep(self.config.camera.exposure)
         return images
 
-    def index(self, config, rotations):
-        return scene_index(config, rotations)
-
     def close(self):
         """Nothing to release: the twin renders in this process."""
 
 
-def scene_index(config, rotations):
+def scene_index(config):
     """``dataset.json`` fields from the rig's scene: camera reference, specimen centre, material."""
-    from ..dataset.simulate import SimulationSettings, _index
-    from ..render import load_scene
+    from ..dataset.simulate import SimulationSettings, dataset_index
+    from ..scene import load_scene
     camera = config.camera
     width, height = camera.resolution
     defines = {**camera.defines, "res": width}
     spp = getattr(camera, "spp", 1)
     scene = load_scene(camera.scene, **defines, spp=spp)
-    settings = SimulationSettings(spp=spp, test_fraction=config.schedule.test_fraction,
-                                  split_seed=config.schedule.split_seed,
-                                  camera=getattr(camera, "model", CameraModel()), dolp_threshold=config.dolp_threshold)
-    index = _index(scene, camera.scene, defines, settings, rotations)
+    settings = SimulationSettings(**asdict(config.schedule), spp=spp, camera=getattr(camera, "model", CameraModel()),
+                                  dolp_threshold=config.dolp_threshold)
+    index = dataset_index(scene, camera.scene, defines, settings)
     if index["resolution"] != [width, height]:
         raise AcquisitionError(f"the rig's scene {camera.scene} renders {index['resolution']}, the rig file asks for "
                                f"{[width, height]}; the scene's film must follow $res")
@@ -329,7 +324,7 @@ def _write_frame(path, images, record):
     """The frame's images and read-back positions, on disk (synced) before its journal line commits it."""
     with atomic_path(path, ".npz") as tmp:
         with open(tmp, "wb") as handle:
-            np.savez(handle, **{f"analyzer_{a}": np.asarray(images[a], dtype=np.float32) for a in ANALYSERS},
+            np.savez(handle, **{f"analyzer_{a}": np.asarray(images[a], dtype=np.float32) for a in ANALYZERS},
                      **{name: np.float64(record[name]) for name in ("azimuth", "elevation", "qwp2_measured")})
             handle.flush()
             os.fsync(handle.fileno())
@@ -337,7 +332,7 @@ def _write_frame(path, images, record):
 
 def _read_frame(path):
     with np.load(path) as data:
-        return {a: data[f"analyzer_{a}"] for a in ANALYSERS}
+        return {a: data[f"analyzer_{a}"] for a in ANALYZERS}
 
 
 def _readable_frame(path):
@@ -420,7 +415,7 @@ class _Acquisition:
         self.rig = Rig(self.config, self.operator)
         try:
             started = self.rig.clock.now()
-            self.index = self.rig.camera.index(self.config, self.rotations)
+            self.index = scene_index(self.config)
             self._describe_source()
             for rotation in self.rotations:
                 if self._complete(rotation, done):
@@ -514,7 +509,7 @@ class _Acquisition:
 
     @staticmethod
     def _keys(rotation):
-        return [Frame(0, rotation, b1, b2).key for b1 in QWP1_SETTINGS for b2 in QWP2_SETTINGS]
+        return [Frame(0, rotation, b1, b2).key for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS]
 
     def _complete(self, rotation, done):
         return all(key in done for key in self._keys(rotation))
@@ -535,7 +530,7 @@ class _Acquisition:
             channels = {}
             for record in records:
                 images = _read_frame(self.output / record["file"])
-                for analyser in ANALYSERS:
+                for analyser in ANALYZERS:
                     channels[measurement_name(record["qwp1"], record["qwp2"], analyser)] = images[analyser]
             channels["mask.dolp"] = dolp_mask(channels, self.config.dolp_threshold).astype(np.float32)
             write_channels(self.output / entry["file"], channels, half=True,

@@ -24,13 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..dataset.masks import ANALYSERS, dolp, linear_settings
+from ..dataset.masks import dolp, linear_settings
+from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS
 from ..physics.su2 import identity
 from .twin import Optics
 
 # The sweep of QWP2 (degrees) at each QWP1 setting: every 15 degrees over a half turn.
 QWP2_SWEEP = tuple(range(0, 180, 15))
-QWP1_SETTINGS = (45.0, 90.0)
 # Degrees within which a measured mount angle counts as a nominal setting.
 SETTING_TOLERANCE = 0.5
 PARAMETERS = ("analyzer_offset", "qwp1_offset", "qwp2_offset", "qwp1_retardance", "qwp2_retardance")
@@ -67,7 +67,7 @@ class Calibration:
         lines = [f"{name} = {getattr(self.optics, name):.3f} deg (+/- {self.standard_errors[name]:.3f})"
                  for name in PARAMETERS]
         lines.append(f"light level {self.light_level:.4f}; residual rms {self.residual_rms:.2e} over "
-                     f"{self.exposures} exposures x {len(ANALYSERS)} analysers; background mask keeps "
+                     f"{self.exposures} exposures x {len(ANALYZERS)} analysers; background mask keeps "
                      f"{100 * self.background_fraction:.1f}% of the pixels")
         swapped = [name.upper() for name in ("qwp1", "qwp2") if getattr(self.optics, f"{name}_swapped")]
         if swapped:
@@ -84,7 +84,7 @@ def background_mask(exposures, threshold=0.9):
     a birefringent or scattering object in view turns the light elliptical or
     depolarises it.
     """
-    linear = [(float(b1), float(b2)) for b1, b2 in linear_settings()]
+    linear = linear_settings()
     # Measured mount angles are a few counts off the nominal ones.
     chosen = [e for e in exposures if any(abs(e.qwp1 - b1) < SETTING_TOLERANCE and
                                           abs((e.qwp2 - b2 + 180.0) % 360.0 - 180.0) < SETTING_TOLERANCE
@@ -92,7 +92,7 @@ def background_mask(exposures, threshold=0.9):
     if not chosen:
         raise ValueError(f"no exposure at a setting with linearly polarised free-space output {sorted(linear)}: "
                          "cannot tell the background")
-    return np.min([dolp([e.images[a] for a in ANALYSERS]) for e in chosen], axis=0) > threshold
+    return np.min([dolp([e.images[a] for a in ANALYZERS]) for e in chosen], axis=0) > threshold
 
 
 def _model(parameters, settings):
@@ -103,7 +103,7 @@ def _model(parameters, settings):
 
 
 def fit(exposures, threshold=0.9) -> Calibration:
-    """Least-squares optics from free-space ``exposures`` (see :data:`QWP2_SWEEP`, :data:`QWP1_SETTINGS`)."""
+    """Least-squares optics from free-space ``exposures`` (see :func:`expected_exposures`)."""
     if len({e.qwp1 for e in exposures}) < 2 or len({e.qwp2 for e in exposures}) < 4:
         raise ValueError("calibration needs both QWP1 settings and at least 4 QWP2 angles (a sweep over a half "
                          f"turn); got QWP1 {sorted({e.qwp1 for e in exposures})}, QWP2 "
@@ -113,7 +113,7 @@ def fit(exposures, threshold=0.9) -> Calibration:
         raise ValueError("no background pixel stays polarised: is the light panel on and the view free?")
     settings, measured = [], []
     for exposure in exposures:
-        for analyzer in ANALYSERS:
+        for analyzer in ANALYZERS:
             settings.append((exposure.qwp1, exposure.qwp2, analyzer))
             measured.append(float(np.mean(exposure.images[analyzer][mask])))
     measured = np.array(measured)
@@ -161,4 +161,4 @@ def _canonical(optics):
 
 def expected_exposures():
     """The (QWP1, QWP2) settings of a calibration run, QWP1 outermost (it is turned by hand)."""
-    return [(qwp1, float(qwp2)) for qwp1 in QWP1_SETTINGS for qwp2 in QWP2_SWEEP]
+    return [(qwp1, float(qwp2)) for qwp1 in INPUT_QWP_SETTINGS for qwp2 in QWP2_SWEEP]

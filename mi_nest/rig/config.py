@@ -9,7 +9,7 @@ missing keys are errors that name the section and the key.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -19,7 +19,7 @@ except ModuleNotFoundError:     # Python < 3.11
     import tomli as tomllib
 
 from ..dataset.camera import CameraModel
-from ..dataset.schedule import rotation_grid
+from ..dataset.schedule import RotationSchedule
 from .twin import Optics
 
 SIMULATED_SCHEMES = {"azimuth": "aptsim", "elevation": "aptsim", "qwp2": "ell14sim"}
@@ -77,18 +77,8 @@ class GenICamCamera:
     kind = "genicam"
 
 
-@dataclass(frozen=True)
-class Schedule:
-    azimuths: int = 25
-    elevations: int = 16
-    azimuth_range: float = 180.0
-    elevation_range: float = 90.0
-    test_fraction: float = 0.2
-    split_seed: int = 0
-
-    def rotations(self):
-        return rotation_grid(self.azimuths, self.elevations, self.azimuth_range, self.elevation_range,
-                             self.test_fraction, self.split_seed)
+# ``[schedule]`` without keys: the paper's 400 rotations.
+RIG_SCHEDULE = RotationSchedule(azimuths=25, elevations=16, elevation_range=90.0)
 
 
 @dataclass(frozen=True)
@@ -122,7 +112,7 @@ class KnownSpecimen:
 class RigConfig:
     devices: Devices
     camera: TwinCamera | GenICamCamera
-    schedule: Schedule = Schedule()
+    schedule: RotationSchedule = RIG_SCHEDULE
     timing: Timing = Timing()
     qwp1_mode: str = "manual"
     retries: int = 3                     # further attempts of a failed frame before the run stops
@@ -175,11 +165,11 @@ def _take(table, where, required=(), optional=()):
     return table
 
 
-def _dataclass_options(cls, table, where):
-    names = [n for n in cls.__dataclass_fields__]
-    _take(table, where, optional=names)
+def _dataclass_options(default, table, where):
+    """``default`` (a dataclass instance) with the values of ``table`` in place of its own."""
+    _take(table, where, optional=[f.name for f in fields(default)])
     try:
-        return cls(**table)
+        return replace(default, **table)
     except (TypeError, ValueError) as error:
         raise RigConfigError(f"[{where}]: {error}") from error
 
@@ -204,8 +194,8 @@ def _camera(table):
     return TwinCamera(scene=str(table["scene"]), defines=dict(table.get("defines", {})),
                       resolution=resolution, supersample=table.get("supersample", 2), spp=table.get("spp", 1),
                       exposure=float(table.get("exposure", 0.05)),
-                      model=_dataclass_options(CameraModel, table.get("model", {}), "camera.model"),
-                      optics=_dataclass_options(Optics, table.get("optics", {}), "camera.optics"))
+                      model=_dataclass_options(CameraModel(), table.get("model", {}), "camera.model"),
+                      optics=_dataclass_options(Optics(), table.get("optics", {}), "camera.optics"))
 
 
 def _genicam_camera(table):
@@ -233,12 +223,12 @@ def parse(data: dict, source=None) -> RigConfig:
         raise RigConfigError(f"[camera] kind = 'twin' renders what simulated devices report; the devices must be "
                              f"{', '.join(f'{n} = {s}://NAME' for n, s in SIMULATED_SCHEMES.items())}, got "
                              f"{asdict(devices)}")
-    schedule = _dataclass_options(Schedule, data.get("schedule", {}), "schedule")
+    schedule = _dataclass_options(RIG_SCHEDULE, data.get("schedule", {}), "schedule")
     try:
         schedule.rotations()
     except ValueError as error:
         raise RigConfigError(f"[schedule]: {error}") from error
-    timing = _dataclass_options(Timing, data.get("timing", {}), "timing")
+    timing = _dataclass_options(Timing(), data.get("timing", {}), "timing")
     if min(asdict(timing).values()) < 0 or timing.stage_speed <= 0 or timing.qwp2_seconds_per_turn <= 0:
         raise RigConfigError(f"[timing]: times must be >= 0 and speeds > 0, got {asdict(timing)}")
     qwp1 = _take(data.get("qwp1", {}), "qwp1", optional=("mode",))
@@ -275,7 +265,7 @@ def load(path) -> RigConfig:
     """Read and check ``RIG.toml``; a shipped name (``rig_twin``) finds the file among the shipped scenes."""
     path = Path(path)
     if not path.is_file() and path.suffix == "" and not path.parent.name:
-        from ..render import scene_path
+        from ..scene import scene_path
         path = scene_path("disk_compression").parent / f"{path.name}.toml"
     try:
         data = tomllib.loads(path.read_text())

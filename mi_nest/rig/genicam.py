@@ -64,10 +64,6 @@ class GenICamBackend:
                            f"{width}x{height}", device="camera")
         return demosaic(raw / self.white_level)
 
-    def index(self, config, rotations):
-        from .acquire import scene_index
-        return scene_index(config, rotations)
-
     def close(self):
         self.acquirer.stop()
         self.acquirer.destroy()

@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from ..dataset.camera import demosaic, mosaic_mask
-from ..dataset.masks import ANALYSERS
+from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
 from .config import DEFAULT_SPECIMEN_DEFINES, KnownSpecimen, load_calibration
 from .errors import RigError
 from .twin import pixel_means, scene_renderer
@@ -41,7 +41,7 @@ MIRRORED = "mirrored"
 SIGN_FLIPPED = "sign-flipped"
 MIRRORED_AND_SIGN_FLIPPED = "mirrored and sign-flipped"
 # QWP1 (turned by hand) outermost, starting at 90 where the free-space sweep leaves it.
-SETTINGS = ((90.0, 0.0), (90.0, 45.0), (45.0, 0.0), (45.0, 45.0))
+SETTINGS = tuple((qwp1, qwp2) for qwp1 in reversed(INPUT_QWP_SETTINGS) for qwp2 in OUTPUT_QWP_SETTINGS)
 # The next best hypothesis must leave at least this times the residual of the best.
 MARGIN = 3.0
 # A specimen whose predictions under two hypotheses differ by less (rms, in units of the light level)
@@ -87,11 +87,11 @@ class SpecimenModel:
         for qwp1, qwp2 in settings:
             images = {analyzer: light_level * pixel_means(optics.polariscope(qwp1, qwp2, analyzer).intensity(self.q),
                                                           self.factor, self.resolution)
-                      for analyzer in ANALYSERS}
+                      for analyzer in ANALYZERS}
             if self.mosaic:
                 images = demosaic(sum(np.where(mosaic_mask(analyzer, image.shape), image, 0.0)
                                       for analyzer, image in images.items()))
-            predicted.extend(images[analyzer][self.inside] for analyzer in ANALYSERS)
+            predicted.extend(images[analyzer][self.inside] for analyzer in ANALYZERS)
         return np.stack(predicted)
 
     def require_separation(self, optics, light_level):
@@ -110,7 +110,7 @@ class SpecimenModel:
     def judge(self, calibration, exposures):
         """The :class:`HandednessCheck` of ``exposures`` (``calibration.Exposure`` at :data:`SETTINGS`)."""
         measured = np.stack([exposure.images[analyzer][self.inside]
-                             for exposure in exposures for analyzer in ANALYSERS])
+                             for exposure in exposures for analyzer in ANALYZERS])
         settings = [(exposure.qwp1, exposure.qwp2) for exposure in exposures]
         residuals = {name: _rms(self.predict(optics, calibration.light_level, settings) - measured)
                      for name, optics in hypotheses(calibration.optics).items()}

@@ -19,8 +19,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..dataset.camera import CameraModel
-from ..dataset.masks import ANALYSERS
-from ..physics.polariscope import Polariscope
+from ..physics.polariscope import ANALYZERS, Polariscope
 from ..physics.su2 import identity
 
 
@@ -96,7 +95,7 @@ class SimulatedCamera:
         q, factor = self._jones(azimuth, elevation)
         images = {f"analyzer.{analyzer}": pixel_means(self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q),
                                                       factor, self.resolution)
-                  for analyzer in ANALYSERS}
+                  for analyzer in ANALYZERS}
         captured = self.camera.capture(images, self.exposures)
         self.exposures += 1
         return {int(name.split(".")[1]): image for name, image in captured.items()}
@@ -121,8 +120,8 @@ def scene_renderer(scene_file, defines, resolution, supersample=2, spp=1):
     ``(H * s, W * s)`` and the factor ``s``.
     """
     from ..dataset.schedule import Rotation, camera_to_world
-    from ..dataset.simulate import pose, reference_pose, specimen_bounds, specimen_shapes
-    from ..render import load_scene, render
+    from ..render import render
+    from ..scene import load_scene, pose, reference_pose, specimen_bounds, specimen_shapes
 
     width, _ = resolution
     scene = load_scene(scene_file, **{**dict(defines), "res": width * supersample, "spp": spp})
