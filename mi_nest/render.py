@@ -7,11 +7,12 @@ import time
 import warnings
 from dataclasses import dataclass, field
 
-import mitsuba as mi
 import numpy as np
 
 from . import __version__, interrupts
 from .arguments import whole_number
+from .fields import StressField
+from .physics.aliasing import FringeAliasing
 from .scene import SceneError, photoelastic_integrator
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -55,6 +56,7 @@ class RenderResult:
     seconds: float
     metadata: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)  # what the integrator warned about, once each
+    aliasing: FringeAliasing | None = None          # the aliasing guard's report on the last pass
 
     @property
     def main(self):
@@ -69,12 +71,14 @@ class RenderResult:
         write_preview(path, self.channels[channel])
 
 
-def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult:
+def render(scene, spp=None, seed=0, passes=None, progress=False, field: StressField | None = None) -> RenderResult:
     """Render ``scene`` (a loaded scene) and return its named channels.
 
     The samples are split into ``passes`` kernel launches of equal size (default:
     up to 16) so that ``progress=True`` can show a bar; every pass uses its own seed
-    and the passes are averaged, which is exact for box-filtered films.
+    and the passes are averaged, which is exact for box-filtered films. ``field``,
+    if given, is rendered in every specimen instead of its own stress (a
+    reconstruction's field).
     """
     sensor = scene.sensors()[0]
     film = sensor.film()
@@ -86,18 +90,14 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     start = time.perf_counter()
     total = None
     # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's.
-    with warnings.catch_warnings(record=True) as caught, integrator.deciding_once(scene, sensor), \
+    with warnings.catch_warnings(record=True) as caught, integrator.deciding_once(scene, sensor, field), \
             interrupts.deferred(), bar:
         warnings.simplefilter("always")
         for index in range(passes):
             interrupts.check()
-            try:
-                image = mi.render(scene, spp=spp // passes, seed=seed * passes + index).numpy()
-            except Exception:
-                # mi.render reports only "error while performing a custom differentiable
-                # operation"; checking the scene raises the cause when the scene is at fault.
-                integrator.check_scene(scene, sensor)
-                raise
+            image, aliasing = integrator.render_with_aliasing(scene, sensor, seed * passes + index, spp // passes,
+                                                              field)
+            image = image.numpy()
             total = image if total is None else total + image
             bar.update()
     # Before the integrator's warnings are repeated: an image refused for NaN pixels needs no warning about them.
@@ -116,7 +116,7 @@ def render(scene, spp=None, seed=0, passes=None, progress=False) -> RenderResult
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
                 "mi_nest.integrator": integrator.class_name()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata,
-                        warnings=[str(w.message) for w in last_of_kind.values()])
+                        warnings=[str(w.message) for w in last_of_kind.values()], aliasing=aliasing)
 
 
 # Bytes per sample beyond its channels during a pass (ray, loop state). With it the estimate below stayed

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from mi_nest.reconstruct.fields import FieldConfig, make_field
-from mi_nest.reconstruct import with_field
 from scenes import box, scene
 
 # Stress that gives about a radian per mm of path: a few radians across the 4 mm box, so the
@@ -62,37 +61,36 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
     def value(parameters):
         field.assign(parameters)
         with dr.suspend_grad():
-            state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5)
+            state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
             return float(loss(integrator.jones(state, blocked))[0])
 
     base = {name: type(v)(np.array(v)) for name, v in field.parameters().items()}
-    with with_field(loaded, field):
-        variables = {name: type(v)(v) for name, v in base.items()}
-        for v in variables.values():
-            dr.enable_grad(v)
-        field.assign(variables)
-        state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5)
-        with dr.resume_grad():
-            leaf = tuple(mi.Float(x) for x in state)
-            dr.enable_grad(leaf)
-            dr.backward(loss(integrator.jones(leaf, blocked)))
-            state_grad = dr.grad(leaf)
-        integrator.backpropagate_rays(loaded, rays, right, state, state_grad, seed=5)
-        gradients = {name: np.array(dr.grad(v)).ravel() for name, v in variables.items()}
+    variables = {name: type(v)(v) for name, v in base.items()}
+    for v in variables.values():
+        dr.enable_grad(v)
+    field.assign(variables)
+    state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
+    with dr.resume_grad():
+        leaf = tuple(mi.Float(x) for x in state)
+        dr.enable_grad(leaf)
+        dr.backward(loss(integrator.jones(leaf, blocked)))
+        state_grad = dr.grad(leaf)
+    integrator.backpropagate_rays(loaded, rays, right, state, state_grad, seed=5, field=field)
+    gradients = {name: np.array(dr.grad(v)).ravel() for name, v in variables.items()}
 
-        checked = 0
-        for name, gradient in gradients.items():
-            flat = np.array(base[name]).ravel()
-            for index in np.argsort(-np.abs(gradient))[:3]:
-                step = 1e-2 * max(1.0, abs(flat[index]))
-                shifted = []
-                for sign in (1, -1):
-                    moved = flat.copy()
-                    moved[index] += sign * step
-                    shifted.append(value({**base, name: type(base[name])(moved.reshape(np.shape(base[name])))}))
-                finite_difference = (shifted[0] - shifted[1]) / (2 * step)
-                assert float(gradient[index]) == pytest.approx(finite_difference, rel=0.03, abs=2e-3 * float(np.abs(gradient).max()))
-                checked += 1
+    checked = 0
+    for name, gradient in gradients.items():
+        flat = np.array(base[name]).ravel()
+        for index in np.argsort(-np.abs(gradient))[:3]:
+            step = 1e-2 * max(1.0, abs(flat[index]))
+            shifted = []
+            for sign in (1, -1):
+                moved = flat.copy()
+                moved[index] += sign * step
+                shifted.append(value({**base, name: type(base[name])(moved.reshape(np.shape(base[name])))}))
+            finite_difference = (shifted[0] - shifted[1]) / (2 * step)
+            assert float(gradient[index]) == pytest.approx(finite_difference, rel=0.03, abs=2e-3 * float(np.abs(gradient).max()))
+            checked += 1
     assert checked >= 3 and max(np.abs(g).max() for g in gradients.values()) > 1e-3
 
 

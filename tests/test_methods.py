@@ -4,6 +4,8 @@ import math
 import numpy as np
 import pytest
 
+from mi_nest.integration import auto
+from mi_nest.integration.setup import SceneSetup
 from mi_nest.physics import MEASUREMENTS, su2
 from scenes import BREWSTER, WAVELENGTH, box, medium, render
 from test_render import twisted_closed_form
@@ -103,8 +105,8 @@ def _auto(shapes, tolerance, **options):
     from scenes import scene
     scene_ = scene(shapes, method="auto", tolerance=tolerance, **options)
     channels = mi_nest.render(scene_).channels
-    integrator = scene_.integrator()
-    return channels, integrator._method, integrator._step, integrator.auto_choice
+    decision = scene_.integrator().decision
+    return channels, decision.method.name, decision.step_size, decision.reason
 
 
 def test_auto_picks_the_exact_linear_model_where_steps_commute():
@@ -124,29 +126,29 @@ def test_auto_analyses_once_for_all_passes_of_a_render(monkeypatch):
     import mi_nest
     import mitsuba as mi
     from scenes import scene
-    photoelastic = mi_nest.plugins.photoelastic
     analyses = []
-    choose = photoelastic._choose_method
-    monkeypatch.setattr(photoelastic, "_choose_method", lambda *args: analyses.append(args) or choose(*args))
+    choose = auto.choose
+    monkeypatch.setattr(auto, "choose", lambda *args: analyses.append(args) or choose(*args))
     field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
     scene_ = scene([box((30, 30, DEPTH), interior=field)], res=2, spp=4, method="auto", tolerance=1e-3)
     integrator = scene_.integrator()
     mi_nest.render(scene_, passes=4)
     assert len(analyses) == 1 and integrator.method == "auto" and integrator._decided is None
-    decided = (integrator._method, integrator._step)
+    decided = (integrator.decision.method.name, integrator.decision.step_size)
     mi.render(scene_)   # outside a render's passes every render analyses its scene again
-    assert len(analyses) == 2 and (integrator._method, integrator._step) == decided
+    assert len(analyses) == 2 and (integrator.decision.method.name, integrator.decision.step_size) == decided
 
 
 def test_auto_samples_the_generator_the_numpy_projection_gives():
     import mi_nest
     from mi_nest.physics import projection
     scene_ = mi_nest.load_scene("kitten", res=8, spp=1)
-    medium_ = next(s.interior_medium() for s in scene_.shapes() if s.interior_medium() is not None)
+    setup = SceneSetup(scene_, scene_.sensors()[0])
+    medium_ = setup.media[0]
     u, v = np.array([0.6, 0.8, 0.0]), np.array([-0.48, 0.36, 0.8])
     box_ = scene_.bbox()
     points = np.random.default_rng(3).uniform(np.array(box_.min), np.array(box_.max), (4, 50, 3))
-    p, q = mi_nest.plugins.photoelastic._generator_sampler(medium_, u, v)(points)
+    p, q = auto.generator_field(setup.phase_tensors[0], u, v)(points)
     stress = medium_.sample(points.reshape(-1, 3))
     expected = projection.project(tuple(stress.T), tuple(u), tuple(v))
     scale = medium_.phase_rate * np.abs(stress).max()
@@ -173,4 +175,27 @@ def test_auto_never_picks_the_linear_model_for_stacked_disks():
     scene_ = mi_nest.load_scene("stacked_disks", res=8, spp=1)
     scene_.integrator().method = "auto"
     mi_nest.render(scene_)
-    assert scene_.integrator()._method == "magnus4"
+    assert scene_.integrator().decision.method.name == "magnus4"
+
+
+@pytest.mark.parametrize("method", ["product", "magnus4"])
+def test_numpy_chords_march_as_the_render_does(method):
+    """The ``auto`` analysis marches NumPy chords with the integrator's own method objects."""
+    import mi_nest
+    from mi_nest.integration import methods
+    from scenes import scene
+    steps = 8
+    field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
+    scene_ = scene([box((30, 30, DEPTH), interior=field)], res=2, step=DEPTH / steps * (1 + 1e-6), method=method)
+    channels = mi_nest.render(scene_).channels
+    setup = SceneSetup(scene_, scene_.sensors()[0])
+    u, v = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])     # image right and up; the light runs along +z
+    generator = auto.generator_field(setup.phase_tensors[0], u, v)
+    starts = np.array([[0.0, 0.0, 0.5 * DEPTH], [3.0, -2.0, 0.5 * DEPTH]])
+    marched = methods.from_properties(method, "midpoint", False, 1e-3).march_chords(
+        generator, starts, np.array([0.0, 0.0, -1.0]), np.full(2, DEPTH), DEPTH / steps * (1 + 1e-6))
+    for c, value in zip("abcd", marched):
+        np.testing.assert_allclose(channels[f"jones.{c}"], value[0], atol=2e-6)
+        np.testing.assert_allclose(value[1], value[0], atol=1e-12)
+    expected = twisted_closed_form(TWIST["amplitude"], TWIST["rate"], TWIST["angle"], DEPTH)
+    assert max(abs(got[0] - want) for got, want in zip(marched, expected)) > 1e-4   # eight steps: not exact

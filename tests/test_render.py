@@ -8,6 +8,7 @@ import trimesh
 
 import mi_nest
 from mi_nest.fields import DiskCompressionField
+from mi_nest.integration.film import CHANNELS
 from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.polariscope import rotation
 from scenes import BREWSTER, WAVELENGTH, box, medium, render, scene
@@ -220,16 +221,33 @@ def test_direct_pixel_sums_match_mitsubas_film_splatting(spp, pixel_format):
     held = np.array(film.bitmap(), copy=True)
     held_sums = np.array(film.develop(raw=True), copy=True)
     names = integrator.channel_names(film)
-    integrator._setup = integrator.check_scene(scene_)
-    generic = np.array(mi.ad.integrators.common.ADIntegrator.render(integrator, scene_, seed=3))
-    integrator._setup = None
+    with integrator._prepared(scene_, scene_.sensors()[0]):
+        generic = np.array(mi.ad.integrators.common.ADIntegrator.render(integrator, scene_, seed=3))
     np.testing.assert_allclose(held_sums, np.array(film.develop(raw=True)), atol=1e-5)
     alpha = pixel_format.endswith("alpha")
-    assert fast.shape == generic.shape == (6, 6, 1 + alpha + len(mi_nest.plugins.photoelastic.CHANNELS))
+    assert fast.shape == generic.shape == (6, 6, 1 + alpha + len(CHANNELS))
     assert names == [str(f.name) for f in film.bitmap().struct_()]
     np.testing.assert_allclose(fast, generic, atol=1e-6)
     np.testing.assert_allclose(held, fast, atol=1e-6)
     assert fast[..., 0].std() > 0.01   # the box edges and jitter make pixels differ
+
+
+@pytest.mark.parametrize("materials", [(BREWSTER, BREWSTER), (BREWSTER, 2 * BREWSTER)])
+def test_a_field_passed_to_the_render_fills_every_specimen_and_leaves_the_scene_alone(materials):
+    """``mi_nest.render(scene, field=...)``: each specimen keeps its material, the field replaces its stress."""
+    from mi_nest.fields import UniformField
+    first = box((20, 20, 2), center=(0, 0, 1), interior=medium(xx=1.5, C=materials[0]))
+    second = box((20, 20, 3), center=(0, 0, -1.5), interior=medium(xy=0.8, C=materials[1]))
+    loaded = scene([first, second], step=0.5)
+    replaced = mi_nest.render(loaded, field=UniformField(xx=0.4, xy=-0.3)).channels
+    rates = [math.pi * c / WAVELENGTH for c in materials]
+    expected = su2.multiply(su2.step(0.4, -0.6, rates[0] * 2.0), su2.step(0.4, -0.6, rates[1] * 3.0))
+    for c, value in zip("abcd", expected):
+        np.testing.assert_allclose(replaced[f"jones.{c}"], value, atol=2e-5)
+    own = mi_nest.render(loaded).channels
+    expected = su2.multiply(su2.step(1.5, 0.0, rates[0] * 2.0), su2.step(0.0, 1.6, rates[1] * 3.0))
+    for c, value in zip("abcd", expected):
+        np.testing.assert_allclose(own[f"jones.{c}"], value, atol=2e-5)
 
 
 @pytest.mark.parametrize("order", ["front_first", "back_first"])

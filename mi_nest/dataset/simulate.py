@@ -168,7 +168,7 @@ def _rotation(scene, output, entry, index, settings):
     pose(scene, entry["to_world"])
     result = render(scene, spp=settings.spp)
     middle = time.perf_counter()
-    _write_rotation(path, result.channels, entry, index, settings, scene.integrator().aliasing)
+    _write_rotation(path, result.channels, entry, index, settings, result.aliasing)
     return middle - start, time.perf_counter() - middle
 
 

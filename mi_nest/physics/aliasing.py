@@ -31,7 +31,7 @@ class FringeAliasing:
     densities: np.ndarray = field(repr=False, compare=False)   # fringe orders per pixel, one per counted pixel
 
     @cached_property
-    def percentile_99(self):
+    def percentile_99(self) -> float:
         """Fringe orders per pixel, 99th percentile over the specimen."""
         # Computed on demand: a partial sort costs more than the rest of the check.
         if self.densities.size == 0:
@@ -40,27 +40,27 @@ class FringeAliasing:
         return float(np.partition(self.densities, rank)[rank])
 
     @property
-    def fraction(self):
+    def fraction(self) -> float:
         return self.aliased / self.pixels if self.pixels else 0.0
 
     @property
-    def aliases(self):
+    def aliases(self) -> bool:
         """Whether more than ``ALIASED_FRACTION`` of the specimen's pixels alias."""
         return self.fraction > ALIASED_FRACTION
 
     @property
-    def resolution_factor(self):
+    def resolution_factor(self) -> int:
         """How many times finer the pixels must be for 99% of the specimen to be sampled."""
         # Small images put the 99th percentile below the aliased pixels it should cover.
         return max(2 if self.aliased else 1, math.ceil(self.percentile_99 / NYQUIST - 1e-9))
 
-    def describe(self):
+    def describe(self) -> str:
         return (f"fringes denser than the pixel grid (over {NYQUIST:g} order per pixel) in "
                 f"{100 * self.fraction:.2g}% of the specimen's pixels, up to {self.densest:.3g} orders per "
                 f"pixel (99th percentile {self.percentile_99:.3g})")
 
 
-def fringe_aliasing(order, inside):
+def fringe_aliasing(order: np.ndarray, inside: np.ndarray) -> FringeAliasing:
     """Fringe density of an ``(H, W)`` unwrapped ``order`` image over the ``inside`` mask.
 
     Each pixel's density is the largest order difference to its right and lower

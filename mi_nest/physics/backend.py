@@ -6,7 +6,15 @@ variant) select Dr.Jit, everything else (NumPy arrays, Python floats) NumPy.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Union
+
 import numpy as np
+
+if TYPE_CHECKING:
+    import drjit
+
+# What the physics functions compute on: a Python float, a NumPy array or a Dr.Jit float array.
+Array = Union[float, np.ndarray, "drjit.ArrayBase"]
 
 
 class _NumPyOps:
@@ -67,7 +75,7 @@ _numpy_ops = _NumPyOps()
 _drjit_ops = None
 
 
-def ops(*values):
+def ops(*values: Array) -> _NumPyOps | _DrJitOps:
     """Return the operation namespace for ``values`` (Dr.Jit if any is a Dr.Jit array)."""
     global _drjit_ops
     for value in values:

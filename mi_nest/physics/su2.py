@@ -9,12 +9,23 @@ matrix ``J = a I + i (b sigma_x + c sigma_z) + d (i sigma_y)``::
 acting on Jones vectors expressed in the transverse basis (u, v) of a ray.
 Every function works element-wise on NumPy or Dr.Jit arrays (see backend.py);
 ``to_matrix``/``from_matrix`` are NumPy-only helpers for tests and tools.
+
+Quaternions travel as plain tuples, which Dr.Jit traces and carries through its
+loops as they are; :data:`Quaternion` and :data:`Generator` only name them.
 """
 from __future__ import annotations
 
+from typing import NewType
+
 import numpy as np
 
-from .backend import ops
+from .backend import Array, ops
+from .tensors import cross
+
+# ``(a, b, c, d)``: a Jones matrix (a unit quaternion for a lossless medium).
+Quaternion = NewType("Quaternion", tuple)
+# ``(0, b, c, d)``: a pure quaternion, element of su(2), the exponent of a step (its generator).
+Generator = NewType("Generator", Quaternion)
 
 # Smallest squared phase carried through the square root (AD-safe at zero stress).
 _TINY = 1e-30
@@ -23,43 +34,43 @@ _TINY = 1e-30
 _SERIES_LIMIT = 1.0
 
 
-def identity(like=0.0):
+def identity(like: Array = 0.0) -> Quaternion:
     """The identity quaternion, broadcast to the type of ``like``."""
     zero = like * 0.0
-    return (zero + 1.0, zero, zero, zero)
+    return Quaternion((zero + 1.0, zero, zero, zero))
 
 
-def multiply(q1, q2):
+def multiply(q1: Quaternion, q2: Quaternion) -> Quaternion:
     """Quaternion product matching the matrix product ``J(q1) @ J(q2)``."""
     a1, b1, c1, d1 = q1
     a2, b2, c2, d2 = q2
-    return (a1 * a2 - b1 * b2 - c1 * c2 - d1 * d2,
+    return Quaternion((a1 * a2 - b1 * b2 - c1 * c2 - d1 * d2,
             a1 * b2 + b1 * a2 - d1 * c2 + c1 * d2,
             a1 * c2 + c1 * a2 - b1 * d2 + d1 * b2,
-            a1 * d2 + d1 * a2 + b1 * c2 - c1 * b2)
+            a1 * d2 + d1 * a2 + b1 * c2 - c1 * b2))
 
 
-def conjugate(q):
+def conjugate(q: Quaternion) -> Quaternion:
     """Inverse of a unit quaternion: the conjugate transpose of its Jones matrix."""
     a, b, c, d = q
-    return (a, -b, -c, -d)
+    return Quaternion((a, -b, -c, -d))
 
 
-def norm_squared(q):
+def norm_squared(q: Quaternion) -> Array:
     a, b, c, d = q
     return a * a + b * b + c * c + d * d
 
 
-def newton_factor(q):
+def newton_factor(q: Quaternion) -> Array:
     """``(3 - |q|^2) / 2``: scaling by it is one Newton step of ``q`` towards unit norm."""
     return (3.0 - norm_squared(q)) * 0.5
 
 
-def scale(q, factor):
-    return tuple(x * factor for x in q)
+def scale(q: Quaternion, factor: Array) -> Quaternion:
+    return Quaternion(tuple(x * factor for x in q))
 
 
-def renormalize(q):
+def renormalize(q: Quaternion) -> Quaternion:
     """One Newton step towards unit norm, ``q (3 - |q|^2) / 2``.
 
     Cheap enough to apply after every step; it removes the float32 drift of
@@ -68,7 +79,7 @@ def renormalize(q):
     return scale(q, newton_factor(q))
 
 
-def multiply_renormalized(q, unit_step):
+def multiply_renormalized(q: Quaternion, unit_step: Quaternion) -> Quaternion:
     """``renormalize(q * unit_step)`` with the factor taken from ``q``.
 
     A unit quaternion does not change the norm, so the Newton factor of ``q``
@@ -78,7 +89,7 @@ def multiply_renormalized(q, unit_step):
     return scale(multiply(q, unit_step), newton_factor(q))
 
 
-def step(p, q, phase):
+def step(p: Array, q: Array, phase: Array) -> Quaternion:
     """Exact exponential of one constant-stress step.
 
     Solves ``dE/ds = -i k [[p, q], [q, -p]] E`` over one step where ``phase = k h``
@@ -92,20 +103,20 @@ def step(p, q, phase):
     return exponential(generator(p, q, phase))
 
 
-def generator(p, q, phase=1.0):
+def generator(p: Array, q: Array, phase: Array = 1.0) -> Generator:
     """The step generator ``-i phase (p sigma_z + q sigma_x)`` as a pure quaternion ``(0, b, c, d)``."""
     zero = p * 0.0
-    return (zero, -phase * q, -phase * p, zero)
+    return Generator((zero, -phase * q, -phase * p, zero))
 
 
-def exponential(omega):
+def exponential(omega: Generator) -> Quaternion:
     """``exp`` of a pure quaternion ``(0, b, c, d)`` (an element of su(2)): a unit quaternion."""
     _, b, c, d = omega
     cos_x, sinc_x = cos_sinc(b * b + c * c + d * d)
-    return (cos_x, b * sinc_x, c * sinc_x, d * sinc_x)
+    return Quaternion((cos_x, b * sinc_x, c * sinc_x, d * sinc_x))
 
 
-def magnus4(first, second, length):
+def magnus4(first: Generator, second: Generator, length: Array) -> Quaternion:
     """Fourth-order Magnus step from the generators per unit length at the two Gauss points.
 
     ``Omega = h/2 (A1 + A2) + sqrt(3)/12 h^2 [A2, A1]``, with ``A1`` sampled before
@@ -116,18 +127,14 @@ def magnus4(first, second, length):
     _, b2, c2, d2 = second
     # In (b, d, c) = (i sigma_x, i sigma_y, i sigma_z) coordinates e_x e_y = -e_z (cyclic),
     # so [A2, A1] = -2 (v2 x v1).
-    cb, cd, cc = _cross((b2, d2, c2), (b1, d1, c1))
+    cb, cd, cc = cross((b2, d2, c2), (b1, d1, c1))
     k = -2.0 * 3.0 ** 0.5 / 12.0 * length * length
     half = 0.5 * length
-    return exponential((b1 * 0.0, half * (b1 + b2) + k * cb, half * (c1 + c2) + k * cc,
-                        half * (d1 + d2) + k * cd))
+    return exponential(Generator((b1 * 0.0, half * (b1 + b2) + k * cb, half * (c1 + c2) + k * cc,
+                                  half * (d1 + d2) + k * cd)))
 
 
-def _cross(u, v):
-    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-
-
-def cos_sinc(x2):
+def cos_sinc(x2: Array) -> tuple[Array, Array]:
     """``(cos x, sin(x) / x)`` from ``x^2``, exact to float32 rounding for any x.
 
     Both are even in x: for ``x^2 <= 1`` (a retardance of at most 2 rad per step,
@@ -150,23 +157,23 @@ def _cos_sinc_trigonometric(x2, xp):
     return cos_x, sin_x * inv_x
 
 
-def retarder(delta, theta):
+def retarder(delta: Array, theta: Array) -> Quaternion:
     """Linear retarder of retardance ``delta`` with its slow axis at ``theta`` (radians)."""
     xp = ops(delta, theta)
     s, c = xp.sincos(0.5 * delta)
     s2, c2 = xp.sincos(2.0 * theta)
-    return (c, -s * s2, -s * c2, delta * 0.0)
+    return Quaternion((c, -s * s2, -s * c2, delta * 0.0))
 
 
-def rotator(gamma):
+def rotator(gamma: Array) -> Quaternion:
     """Rotator by ``gamma`` (radians): the rotation R(gamma) of docs/physics.md section 1."""
     xp = ops(gamma)
     s, c = xp.sincos(gamma)
     zero = gamma * 0.0
-    return (c, zero, zero, -s)
+    return Quaternion((c, zero, zero, -s))
 
 
-def characteristic_parameters(q):
+def characteristic_parameters(q: Quaternion) -> tuple[Array, Array, Array]:
     """Poincare equivalence: ``J = rotator(gamma) @ retarder(delta, theta)``.
 
     Returns ``(delta, theta, gamma)`` in radians with ``delta`` in [0, 2 pi],
@@ -190,7 +197,7 @@ def characteristic_parameters(q):
     return delta, theta, gamma
 
 
-def to_matrix(q):
+def to_matrix(q: Quaternion) -> np.ndarray:
     """Complex Jones matrices, shape ``(..., 2, 2)`` (NumPy)."""
     a, b, c, d = (np.asarray(x, dtype=np.float64) for x in q)
     J = np.empty(np.broadcast(a, b, c, d).shape + (2, 2), dtype=np.complex128)
@@ -201,11 +208,11 @@ def to_matrix(q):
     return J
 
 
-def from_matrix(J):
+def from_matrix(J: np.ndarray) -> Quaternion:
     """Quaternion of SU(2) matrices ``(..., 2, 2)`` (NumPy); inverse of :func:`to_matrix`."""
     J = np.asarray(J)
     a = 0.5 * (J[..., 0, 0] + J[..., 1, 1]).real
     c = 0.5 * (J[..., 0, 0] - J[..., 1, 1]).imag
     b = 0.5 * (J[..., 0, 1] + J[..., 1, 0]).imag
     d = 0.5 * (J[..., 0, 1] - J[..., 1, 0]).real
-    return a, b, c, d
+    return Quaternion((a, b, c, d))

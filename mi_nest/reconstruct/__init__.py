@@ -3,10 +3,9 @@ from .checkpoints import CheckpointError, Reconstruction
 from .config import (REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser, Regulariser, Reporting,
                      Schedule)
 from .fields import DeviatoricGrid, HashGridField, MLPField, TrainableField, make_field
-from .forward import with_field
 from .loop import DivergenceError
 from .optimization import optimize
 
 __all__ = ["optimize", "OptimizeConfig", "Schedule", "Optimiser", "ForwardModel", "Regulariser", "Reporting",
            "Reconstruction", "DivergenceError", "CheckpointError", "FieldConfig", "TrainableField", "DeviatoricGrid",
-           "HashGridField", "MLPField", "make_field", "with_field", "REGULARISED"]
+           "HashGridField", "MLPField", "make_field", "REGULARISED"]

@@ -12,7 +12,7 @@ import numpy as np
 from ..io.atomic import atomic_path
 from .config import OptimizeConfig
 from .fields import TrainableField, field_from_state
-from .forward import make_integrator, with_field
+from .forward import make_integrator
 
 CHECKPOINT = "checkpoint.npz"
 # What every checkpoint holds; one without them was cut short or is not a checkpoint.
@@ -152,8 +152,7 @@ class Reconstruction:
     def render(self, scene, **options):
         """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""
         from ..render import render
-        with with_field(scene, self.field):
-            return render(scene, **options)
+        return render(scene, field=self.field, **options)
 
 
 def load_field(path) -> TrainableField:

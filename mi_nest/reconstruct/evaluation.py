@@ -7,16 +7,15 @@ import numpy as np
 from ..dataset import Dataset
 from ..physics import MEASUREMENTS
 from . import metrics
-from .forward import with_field
 from .losses import intensities
 from .rays import ViewRays
 
 
-def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator, position: int) -> np.ndarray:
-    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with the scene's current field,
-    through the polariscopes the dataset was measured with."""
+def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator, position: int, stress_field) -> np.ndarray:
+    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with ``stress_field`` in the
+    specimens, through the polariscopes the dataset was measured with."""
     rays, right = view_rays.view(position)
-    state, blocked, _ = integrator.trace_rays(scene, rays, right)
+    state, blocked, _ = integrator.trace_rays(scene, rays, right, field=stress_field)
     scopes = view_rays.dataset.polariscopes()
     return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked), scopes)], axis=-1)
 
@@ -33,15 +32,14 @@ def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field, integrator, sp
     """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
     view_rays = ViewRays(scene, dataset)
     total = count = 0.0
-    with with_field(scene, stress_field):
-        for position in dataset.split(split):
-            error = np.abs(predict_view(scene, view_rays, integrator, position)
-                           - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
-            inside = view_mask(dataset, position, mask)
-            if inside is not None:
-                error = error[inside]
-            total += float(error.sum())
-            count += error.size
+    for position in dataset.split(split):
+        error = np.abs(predict_view(scene, view_rays, integrator, position, stress_field)
+                       - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
+        inside = view_mask(dataset, position, mask)
+        if inside is not None:
+            error = error[inside]
+        total += float(error.sum())
+        count += error.size
     return total / max(count, 1)
 
 
@@ -60,7 +58,7 @@ def evaluate(scene: mi.Scene, dataset: Dataset, stress_field, integrator, truth,
     test = dataset.split("test")[:views]
     if test:
         view_rays = ViewRays(scene, dataset)
-        values = [metrics.psnr(predict_view(scene, view_rays, integrator, position),
+        values = [metrics.psnr(predict_view(scene, view_rays, integrator, position, stress_field),
                                dataset.measurements(position).reshape(-1, len(MEASUREMENTS)),
                                view_mask(dataset, position, mask)) for position in test]
         results.update(test_psnr=float(np.mean(values)), test_views=len(test))

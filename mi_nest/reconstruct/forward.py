@@ -1,11 +1,8 @@
-"""The forward model of a reconstruction: its integrator, and its field in the scene's specimens."""
+"""The forward model of a reconstruction: the integrator it renders its field with."""
 from __future__ import annotations
-
-import contextlib
 
 import mitsuba as mi
 
-from ..scene import specimen_media
 from .config import OptimizeConfig
 from .fields import TrainableField, grid_shape
 
@@ -23,21 +20,3 @@ def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method
     method = method or config.model.method
     method = "linear" if method == "two-step" else method
     return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True})
-
-
-def plant_field(scene: mi.Scene, stress_field) -> None:
-    """Give every specimen of ``scene`` the stress field ``stress_field``."""
-    for medium in specimen_media(scene):
-        medium.field = stress_field
-
-
-@contextlib.contextmanager
-def with_field(scene: mi.Scene, stress_field):
-    """Temporarily give every specimen of ``scene`` the stress field ``stress_field``."""
-    previous = [(medium, medium.field) for medium in specimen_media(scene)]
-    plant_field(scene, stress_field)
-    try:
-        yield
-    finally:
-        for medium, original in previous:
-            medium.field = original

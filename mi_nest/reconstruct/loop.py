@@ -25,7 +25,7 @@ from ..scene import specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .fields import choose_kind, make_field, refined
-from .forward import make_integrator, plant_field
+from .forward import make_integrator
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
 from .two_step import RetardanceTargets
@@ -201,7 +201,6 @@ class Run:
         resolution = [r for start, r in self.stages if start <= self.progress()][-1]
         if self.field.kind == "grid" and self.field.config.resolution != resolution:
             self.field = refined(self.field, resolution)
-            plant_field(self.scene, self.field)
             self.optimizer = self._optimizer()
 
     def step(self, integrator):
@@ -216,7 +215,7 @@ class Run:
                                           jitter=stratified(len(rows), samples, self.rng))
         self.optimizer.set_learning_rate(self.learning_rate())
         seed = optimiser.seed * 1_000_003 + self.iteration
-        state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed)
+        state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed, field=self.field)
         admitted = None
         limit = self.path_limit(length, samples)
         if limit is not None:
@@ -238,7 +237,7 @@ class Run:
                 total = total + penalty
             dr.backward(total)
             state_grad = dr.grad(leaf)
-        integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed)
+        integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed, field=self.field)
         value = float(total[0])
         self._check_divergence(value)
         self.optimizer.step()

@@ -24,7 +24,6 @@ from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .config import OptimizeConfig
 from .evaluation import evaluate
-from .forward import with_field
 from .loop import Run
 
 
@@ -71,12 +70,11 @@ def optimize(scene, dataset, *, output=None, resume: bool = True, progress: bool
         if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
             run.restore(Path(output) / CHECKPOINT)
         # Ctrl-C waits for the end of an iteration, so that the checkpoint holds whole steps.
-        with with_field(scene, run.field), interrupts.deferred():
+        with interrupts.deferred():
             run.loop()
         result = run.result()
-        with with_field(scene, result.field):
-            result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
-                                           config.reporting.evaluate_views, config.optimiser.mask, shapes))
+        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
+                                       config.reporting.evaluate_views, config.optimiser.mask, shapes))
         if output is not None:
             result.save(output)
     return result

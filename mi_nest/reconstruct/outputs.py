@@ -13,7 +13,6 @@ from ..io.preview import write_preview
 from ..render import render
 from .checkpoints import Reconstruction
 from .evaluation import predict_view
-from .forward import with_field
 from .rays import ViewRays
 
 
@@ -23,8 +22,7 @@ def write_test_view(scene: mi.Scene, result: Reconstruction, output, dataset: Da
     test = dataset.split("test") or dataset.split("train")
     position = test[0]
     width, height = dataset.resolution
-    with with_field(scene, result.field):
-        predicted = predict_view(scene, ViewRays(scene, dataset), result.integrator(), position)
+    predicted = predict_view(scene, ViewRays(scene, dataset), result.integrator(), position, result.field)
     measured = dataset.measurements(position)
     channels = {f"reconstructed.{name}": predicted[:, i].reshape(height, width) for i, name in enumerate(dataset.channels)}
     channels.update({f"measured.{name}": measured[..., i] for i, name in enumerate(dataset.channels)})
