@@ -8,7 +8,7 @@ again after every variant change.
 import glob
 import os
 
-__version__ = "0.1.0"
+from .version import __version__
 
 # Dr.Jit 1.5 crashes on LLVM 15/16 and refuses 14: point it at LLVM 19 when the
 # system has it (Debian's libllvm19) and the user has not chosen a library.

@@ -9,11 +9,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import __version__, interrupts
+from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
 from .scene import SceneError, photoelastic_integrator
+from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
 # 5.6e4 orders and 0.08 to 0.26 off at 5.6e5 (float32 phases); real specimens show a few hundred.

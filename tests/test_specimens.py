@@ -9,8 +9,9 @@ import pytest
 import trimesh
 
 import mi_nest
-from mi_nest.fields.mesh import MeshError, TetMeshStress
+from mi_nest.fields.mesh import TetMeshStress
 from mi_nest.fields.sources import export_vtu, grid_from_file
+from mi_nest.io.cells import MeshError
 from mi_nest.io.mesh import save_mesh_stress
 from mi_nest.io.tsv import TsvFileError, read_stress_file, write_stress_file
 from scenes import BREWSTER, WAVELENGTH, scene
@@ -45,7 +46,7 @@ def test_kitten_imports_with_its_counts_and_renders_fringes():
     model = read_stress_file(KITTEN)
     assert model.vertices.shape == (17260, 3) and model.elements.shape == (14410, 8)
     assert model.node_forces.shape == (96, 4) and model.fixed_nodes.shape == (384,)
-    mesh = model.mesh()
+    mesh = TetMeshStress.from_model(model)
     surface = trimesh.Trimesh(mesh.nodes, mesh.surface, process=False)
     assert surface.is_watertight and surface.is_winding_consistent and surface.volume > 0
     specimen = {"type": "specimen", "filename": str(KITTEN), "fringe_value": 2000.0, "grid_resolution": 32}
@@ -182,7 +183,7 @@ def test_carti_grid_orientation_order_and_rendering(tmp_path):
     assert model.elements.shape == (len(solid), 8) and model.node_forces.shape == (1, 4)
     # Each node's stress row matches its position: pins y orientation and the id order.
     np.testing.assert_allclose(model.stress, model.vertices @ gradient, atol=1e-6)
-    mesh = model.mesh()
+    mesh = TetMeshStress.from_model(model)
     surface = trimesh.Trimesh(mesh.nodes, mesh.surface, process=False)
     assert surface.is_watertight and surface.volume == pytest.approx(8 * 6 * 4 * (1 - 2 / 12), rel=1e-9)
     # The missing voxels are at the top (largest y), right (largest x).
@@ -210,6 +211,6 @@ def test_the_ansys_cube_sample_imports_with_a_closed_boundary():
     model = read_stress_file(CUBE)
     assert model.vertices.shape == (68921, 3) and model.elements.shape == (64000, 8)
     assert model.node_forces.shape == (1681, 4) and model.fixed_nodes.shape == (1681,)
-    mesh = model.mesh()
+    mesh = TetMeshStress.from_model(model)
     surface = trimesh.Trimesh(mesh.nodes, mesh.surface, process=False)
     assert surface.is_watertight and surface.volume == pytest.approx(np.prod(np.ptp(mesh.nodes, axis=0)), rel=1e-6)

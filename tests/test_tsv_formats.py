@@ -8,9 +8,10 @@ import pytest
 import mi_nest
 from mi_nest.cli import main
 from mi_nest.fem import FemError, FemSpec, file_boundary_conditions, spec_from_flags
-from mi_nest.fields.mesh import MeshError, TetMeshStress
+from mi_nest.fields.mesh import TetMeshStress
 from mi_nest.fields.sources import grid_from_file, load_mesh, mesh_arrays
 from mi_nest.io.carti import read_carti_file, write_carti_file
+from mi_nest.io.cells import MeshError
 from mi_nest.io.preview import mesh_preview_figure
 from mi_nest.io.tsv import BoundaryConditions, TsvFileError, read_stress_file, write_stress_file
 from scenes import BREWSTER, WAVELENGTH, scene

@@ -15,7 +15,6 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from .. import __version__
 from ..arguments import whole_number
 from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
@@ -24,6 +23,7 @@ from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETT
 from ..render import render, render_plan
 from ..scene import (SceneError, camera_of, load_scene, polariscope_light, pose, reference_pose, scene_file,
                      specimen_bounds, specimen_media, specimen_shapes)
+from ..version import __version__
 from . import format as fmt
 from .camera import CameraModel
 from .masks import agreement, dolp_mask

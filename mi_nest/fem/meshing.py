@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.cells import signed_volumes
 from .config import FemError, number, parse_typed, vector
 
 SURFACE_SUFFIXES = (".stl", ".ply", ".obj", ".off", ".glb", ".gltf")
@@ -116,9 +117,7 @@ def _to_skfem(nodes, tets, surface_groups=None):
     used, tets = np.unique(tets, return_inverse=True)         # drop nodes no tetrahedron uses
     tets = tets.reshape(-1, 4)
     nodes = np.asarray(nodes, dtype=np.float64)[used]
-    corners = nodes[tets]
-    volume = np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                       corners[:, 3] - corners[:, 0]) / 6.0
+    volume = signed_volumes(nodes, tets) / 6.0
     extent = np.ptp(nodes, axis=0).max()
     if np.any(np.abs(volume) <= 1e-12 * extent ** 3):
         raise FemError(f"the mesh has {int(np.sum(np.abs(volume) <= 1e-12 * extent ** 3))} degenerate "

@@ -13,19 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.cells import MeshError, as_tets, fill_from_nearest, signed_volumes
 from ..io.grid import StressGrid, grid_nodes
-from ..io.tsv import BoundaryConditions
+from ..io.tsv import BoundaryConditions, TsvModel
 from .base import FieldParameterError
 
-# A positively oriented hexahedron (VTK / 3D-TSV order: bottom quad 0-3, top quad
-# 4-7) cut into six tetrahedra around its diagonal 0-6.
-_HEX_TO_TETS = np.array([[0, 1, 2, 6], [0, 2, 3, 6], [0, 3, 7, 6], [0, 7, 4, 6], [0, 4, 5, 6], [0, 5, 1, 6]])
 _TET_FACES = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
 _HEX_FACES = np.array([[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]])
-
-
-class MeshError(ValueError):
-    """A mesh or its stress data is inconsistent."""
 
 
 @dataclass(frozen=True)
@@ -69,8 +63,13 @@ class TetMeshStress:
             except ValueError as error:
                 raise MeshError(f"boundary conditions: {error}") from None
         faces = _HEX_FACES if cells.shape[1] == 8 else _TET_FACES
-        tets = _positively_oriented(nodes, _as_tets(cells))
+        tets = _positively_oriented(nodes, as_tets(cells))
         return cls(nodes, tets, stress, _boundary(nodes, cells, faces), boundary)
+
+    @classmethod
+    def from_model(cls, model: TsvModel) -> TetMeshStress:
+        """The mesh of a 3D-TSV model (``mi_nest.io.tsv``), with its boundary conditions."""
+        return cls.from_cells(model.vertices, model.elements, model.stress, boundary=model.boundary_conditions())
 
     @property
     def bbox(self):
@@ -137,46 +136,6 @@ class TetMeshStress:
         return StressGrid(stress, lo, hi)
 
 
-def fill_from_nearest(values, known):
-    """``values`` (Z, Y, X, C) with every node outside ``known`` copied from the nearest known node.
-
-    A Euclidean distance transform on the grid itself: iterative C code, so it
-    also runs on the small stacks of Mitsuba's scene-loading worker threads
-    (a k-d tree query there has crashed the process).
-    """
-    if known.all():
-        return values
-    if not known.any():
-        raise MeshError("no grid node lies inside the mesh: the grid is too coarse for it")
-    from scipy.ndimage import distance_transform_edt
-    nearest = distance_transform_edt(~known, return_distances=False, return_indices=True)
-    return values[tuple(nearest)]
-
-
-def nodal_average(nodes, cells, cell_values):
-    """Values given per cell (M, C) averaged at the nodes, each cell weighted by its volume.
-
-    What element-wise FEM stress becomes on a mesh that interpolates nodal
-    values: a field that is uniform over the cells stays exactly uniform, and
-    per-cell samples of a linear field give it back exactly at nodes whose cells
-    sit symmetrically around them. Nodes of no cell get zeros (no cell uses them).
-    """
-    nodes = np.asarray(nodes, dtype=np.float64)
-    cells = np.asarray(cells, dtype=np.int64)
-    tets = _as_tets(cells)
-    volume = np.abs(_signed_volumes(nodes, tets)).reshape(len(cells), -1).sum(axis=1)
-    degenerate = volume <= 1e-12 * np.ptp(nodes, axis=0).max() ** 3
-    if np.any(degenerate):
-        raise MeshError(f"{int(np.sum(degenerate))} degenerate (zero-volume) cells, first cell "
-                        f"{int(np.argmax(degenerate))}: their stress cannot be weighted")
-    weighted = np.zeros((len(nodes), cell_values.shape[1]))
-    weight = np.zeros(len(nodes))
-    for corner in cells.T:
-        np.add.at(weighted, corner, volume[:, None] * cell_values)
-        np.add.at(weight, corner, volume)
-    return weighted / np.maximum(weight, np.finfo(float).tiny)[:, None]
-
-
 def _node_indices(cells):
     """``cells`` as int64 node indices. Floats must hold whole numbers: cast, 3.7 would become node 3."""
     cells = np.asarray(cells)
@@ -192,19 +151,8 @@ def _node_indices(cells):
     return cells.astype(np.int64)
 
 
-def _as_tets(cells):
-    return cells[:, _HEX_TO_TETS].reshape(-1, 4) if cells.shape[1] == 8 else cells
-
-
-def _signed_volumes(nodes, tets):
-    """Six times the signed volume of each tetrahedron."""
-    corners = nodes[tets]
-    return np.einsum("ij,ij->i", np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]),
-                     corners[:, 3] - corners[:, 0])
-
-
 def _positively_oriented(nodes, tets):
-    volume = _signed_volumes(nodes, tets)
+    volume = signed_volumes(nodes, tets)
     extent = np.ptp(nodes, axis=0).max()
     degenerate = np.abs(volume) <= 1e-12 * extent ** 3
     if np.any(degenerate):

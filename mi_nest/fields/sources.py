@@ -82,7 +82,7 @@ def load_mesh(path) -> TetMeshStress:
 @lru_cache(maxsize=8)
 def _mesh_cached(path, mtime_ns, size):
     if is_tsv_file(path):
-        return read_tsv_model(path).mesh()
+        return TetMeshStress.from_model(read_tsv_model(path))
     return TetMeshStress.from_cells(*mesh_arrays(path))
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cells import fill_from_nearest, nodal_average
 from .tsv import TsvFileError, TsvModel
 
 
@@ -72,7 +73,6 @@ class CartesianGrid:
 
     def grid_stress(self):
         """Nodal stress on the full grid as (Z, Y, X, 6), y ascending; empty nodes take the nearest node."""
-        from ..fields.mesh import fill_from_nearest
         nelx, nely, nelz = self.cells
         count = (nelx + 1) * (nely + 1) * (nelz + 1)
         values = np.zeros((count, 6), np.float32)
@@ -136,7 +136,6 @@ def read_carti_file(path, one_based=None) -> CartesianGrid:
         if len(stress) != len(voxels):
             raise TsvFileError(f"{path}: {len(stress)} stress rows for {len(voxels)} solid voxels "
                                "('Stress Data Type: ELEMENT': one per voxel)")
-        from ..fields.mesh import nodal_average
         stress = nodal_average(grid.node_coordinates(node_ids), np.searchsorted(node_ids, hexahedra), stress)
     elif len(stress) != len(node_ids):
         raise TsvFileError(f"{path}: {len(stress)} stress rows for the {len(node_ids)} nodes of the solid voxels")

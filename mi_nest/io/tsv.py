@@ -12,7 +12,7 @@ fixtures are optional; vertices, elements and stress are required. Today's
     Solid Hex 1                   (or Solid Tet 1: first-order hexahedra or tetrahedra)
 
 Element-wise stress is averaged to the nodes, each element weighted by its
-volume (:func:`mi_nest.fields.mesh.nodal_average`), so ``TsvModel.stress`` is
+volume (:func:`mi_nest.io.cells.nodal_average`), so ``TsvModel.stress`` is
 always one tensor per vertex.
 """
 from __future__ import annotations
@@ -23,6 +23,8 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+
+from .cells import MeshError, nodal_average
 
 _SECTIONS = {"vertices": ("Vertices", 3), "elements": ("Elements", None), "node_forces": ("Node Forces", 4),
              "fixed_nodes": ("Fixed Nodes", 1), "stress": ("Cartesian Stress", 6)}
@@ -82,11 +84,6 @@ class TsvModel:
 
     def boundary_conditions(self) -> BoundaryConditions:
         return BoundaryConditions(self.node_forces[:, 0], self.node_forces[:, 1:], self.fixed_nodes)
-
-    def mesh(self):
-        from ..fields.mesh import TetMeshStress
-        return TetMeshStress.from_cells(self.vertices, self.elements, self.stress,
-                                        boundary=self.boundary_conditions())
 
 
 def read_stress_file(path) -> TsvModel:
@@ -185,7 +182,6 @@ def _read_cached(path, mtime_ns, size):
                 if not header.element_stress and len(stress) == len(elements) else "")
         raise TsvFileError(f"{path}:{starts['stress']}: {len(stress)} stress rows for {expected} {owners}{hint}")
     if header.element_stress:
-        from ..fields.mesh import MeshError, nodal_average
         try:
             stress = nodal_average(vertices, elements, stress)
         except MeshError as error:
