@@ -355,7 +355,7 @@ def _format_warning(message, category, filename, lineno, line=None):
     return f"mi-nest: warning: {message}\n"
 
 
-def main(argv=None):
+def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     status = None
     try:

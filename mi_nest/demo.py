@@ -19,7 +19,7 @@ DEMO_LOAD, DEMO_CONTACT, DEMO_RES, DEMO_ROTATIONS = 60.0, 4.0, 48, 12
 DEMO_GRID, DEMO_ITERATIONS = 32, 4000
 
 
-def write_render(result: RenderResult, output, png=None) -> None:
+def write_render(result: RenderResult, output: str | Path, png: str | Path | None = None) -> None:
     """Write ``result`` as an EXR (and a PNG of its main channel) and say where."""
     result.write_exr(output)
     print(f"wrote {Path(output).resolve()} ({len(result.channels)} channels, {result.main.shape[1]}x"
@@ -29,7 +29,7 @@ def write_render(result: RenderResult, output, png=None) -> None:
         print(f"wrote {Path(png).resolve()}")
 
 
-def run_demo(output_dir, iterations: int = DEMO_ITERATIONS) -> Reconstruction:
+def run_demo(output_dir: str | Path, iterations: int = DEMO_ITERATIONS) -> Reconstruction:
     """Render the default scene, then the whole NeST loop on it: simulate, reconstruct, compare."""
     out = Path(output_dir)
     scene = load_scene(scene_path(DEFAULT_SCENE))

@@ -7,9 +7,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import drjit as dr
+import mitsuba as mi
 import numpy as np
 
+from ..dataset import Dataset
 from ..io.atomic import atomic_path
+from ..render import RenderResult, render
 from .config import OptimizeConfig
 from .fields import TrainableField, field_from_state
 from .forward import make_integrator
@@ -23,7 +26,7 @@ class CheckpointError(ValueError):
     """The output directory's checkpoint cannot be resumed from; ``problem`` says why, without the remedy
     (``resume=False`` here, ``--restart`` on the command line)."""
 
-    def __init__(self, problem):
+    def __init__(self, problem: str):
         super().__init__(f"{problem}; pass resume=False to start over")
         self.problem = problem
 
@@ -41,7 +44,7 @@ class Checkpoint:
     rng: dict                        # the state of the batches' bit generator
     path_range: list | None          # the path curriculum's (shortest, longest), once measured
 
-    def save(self, path: Path, config: OptimizeConfig, dataset) -> None:
+    def save(self, path: Path, config: OptimizeConfig, dataset: Dataset) -> None:
         """Write to ``path``, with the run's ``config`` and ``dataset``, which a resumed run must share."""
         state = {f"field.{k}": v for k, v in self.field.state().items()}
         for name, moments in self.adam.items():
@@ -55,7 +58,7 @@ class Checkpoint:
             _save_npz(tmp, state)
 
     @classmethod
-    def load(cls, path: Path, config: OptimizeConfig, dataset) -> Checkpoint:
+    def load(cls, path: Path, config: OptimizeConfig, dataset: Dataset) -> Checkpoint:
         """The checkpoint at ``path``; :class:`CheckpointError` if it is unreadable, cut short, or of a run
         with another ``config`` or ``dataset``."""
         state = _read_whole(path)
@@ -124,7 +127,7 @@ class Reconstruction:
                          "rotations")
         return "\n".join(line for line in lines if line)
 
-    def save(self, directory) -> Path:
+    def save(self, directory: str | Path) -> Path:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         with atomic_path(directory / "field.npz", ".npz") as tmp:
@@ -137,7 +140,7 @@ class Reconstruction:
         return directory
 
     @classmethod
-    def load(cls, directory) -> Reconstruction:
+    def load(cls, directory: str | Path) -> Reconstruction:
         directory = Path(directory)
         for name in ("field.npz", "reconstruction.json"):
             if not (directory / name).is_file():
@@ -146,16 +149,15 @@ class Reconstruction:
         return cls(load_field(directory / "field.npz"), OptimizeConfig.from_dict(record["config"]),
                    record["history"], record["metrics"], record["seconds"])
 
-    def integrator(self):
+    def integrator(self) -> mi.Integrator:
         return make_integrator(self.config, self.field)
 
-    def render(self, scene, **options):
+    def render(self, scene: mi.Scene, **options) -> RenderResult:
         """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""
-        from ..render import render
         return render(scene, field=self.field, **options)
 
 
-def load_field(path) -> TrainableField:
+def load_field(path: str | Path) -> TrainableField:
     """The field of a saved reconstruction (``field.npz``)."""
     with np.load(path, allow_pickle=False) as data:
         state = {key: data[key] for key in data.files}

@@ -54,7 +54,7 @@ class Optimiser:
     final_learning_rate: float = 3e-3  # the end of the rate's geometric decay over the run
     batch_size: int = 4096           # pixels per iteration
     views_per_batch: int = 16        # rotations each batch draws its pixels from
-    pixel_samples: int | None = None  # rays averaged per pixel, as the camera integrates; None: the dataset's spp (<= 4)
+    pixel_samples: int | None = None  # rays averaged per pixel as the camera integrates (None: the dataset's spp, <= 4)
     mask: str | None = "mask.dolp"   # dataset channel of the pixels that enter the loss and the PSNR (None: all)
     seed: int = 0                    # of the batches and the steps' jitter
 
@@ -147,7 +147,7 @@ REGULARISED = Regulariser(smoothness=1.3e-4, smoothness_edge=5.0, average_last=0
 class Reporting:
     """What the run records besides the field."""
     checkpoint_every: int = 100      # iterations between checkpoints (a rerun resumes from the last)
-    track_error_every: int = 0       # with a ground truth: record the stress error every this many iterations (0: never)
+    track_error_every: int = 0       # with a ground truth: iterations between records of the stress error (0: never)
     evaluate_views: int = 16         # held-out rotations rendered for the PSNR
 
     def __post_init__(self):

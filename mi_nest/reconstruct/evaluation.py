@@ -5,13 +5,15 @@ import mitsuba as mi
 import numpy as np
 
 from ..dataset import Dataset
+from ..fields.base import StressField
 from ..physics import MEASUREMENTS
 from . import metrics
 from .losses import intensities
 from .rays import ViewRays
 
 
-def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator, position: int, stress_field) -> np.ndarray:
+def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator: mi.Integrator, position: int,
+                 stress_field: StressField) -> np.ndarray:
     """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with ``stress_field`` in the
     specimens, through the polariscopes the dataset was measured with."""
     rays, right = view_rays.view(position)
@@ -27,7 +29,8 @@ def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray |
     return dataset.view(position, [mask])[mask].ravel() > 0.5
 
 
-def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field, integrator, split: str = "train",
+def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
+                 split: str = "train",
                  mask: str | None = "mask.dolp") -> float:
     """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
     view_rays = ViewRays(scene, dataset)
@@ -43,7 +46,8 @@ def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field, integrator, sp
     return total / max(count, 1)
 
 
-def evaluate(scene: mi.Scene, dataset: Dataset, stress_field, integrator, truth, views: int, mask: str | None,
+def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
+             truth: StressField | None, views: int, mask: str | None,
              shapes: list) -> dict:
     """Errors against ``truth`` over the occupied volume, and PSNR of up to ``views`` held-out rotations."""
     results = {}

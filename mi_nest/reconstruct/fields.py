@@ -32,7 +32,7 @@ DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
 GRID_NODE_LIMIT = 2_000_000
 
 
-def choose_kind(config: FieldConfig, extent) -> str:
+def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
     """The cheapest representation for a specimen of bounding-box ``extent`` (mm).
 
     A dense grid is the cheapest per sample (one trilinear lookup) and per
@@ -46,7 +46,7 @@ def choose_kind(config: FieldConfig, extent) -> str:
     return "grid" if nodes <= GRID_NODE_LIMIT else "hashgrid"
 
 
-def grid_shape(resolution, extent):
+def grid_shape(resolution: int, extent: np.ndarray) -> tuple[int, int, int]:
     """``(nx, ny, nz)``: ``resolution`` nodes along the longest axis, at least 2 on each."""
     extent = np.asarray(extent, dtype=np.float64)
     spacing = extent.max() / (resolution - 1)
@@ -56,7 +56,7 @@ def grid_shape(resolution, extent):
 class TrainableField(StressField):
     kind = ""
 
-    def __init__(self, config: FieldConfig, bbox_min, bbox_max, stress_scale):
+    def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         self.config = config
         self.bbox_min = np.asarray(bbox_min, dtype=np.float64)
         self.bbox_max = np.asarray(bbox_max, dtype=np.float64)
@@ -68,25 +68,25 @@ class TrainableField(StressField):
         self._scale = mi.ScalarVector3f(1.0 / (self.bbox_max - self.bbox_min))
         self._offset = mi.ScalarVector3f(-self.bbox_min / (self.bbox_max - self.bbox_min))
 
-    def unit_coordinates(self, p):
+    def unit_coordinates(self, p: mi.Point3f) -> mi.Point3f:
         """``p`` mapped to [0, 1]^3 over the bounding box."""
         return dr.fma(mi.Point3f(p), self._scale, self._offset)
 
-    def eval(self, p):
+    def eval(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         xx, yy, yz, zx, xy = (self.stress_scale * c for c in self.deviatoric(p))
         return xx, yy, -(xx + yy), yz, zx, xy
 
-    def deviatoric(self, p):
+    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         """The five stored components at ``p``, in units of ``stress_scale``."""
         raise NotImplementedError
 
     def parameters(self) -> dict:
         raise NotImplementedError
 
-    def assign(self, values) -> None:
+    def assign(self, values: dict) -> None:
         raise NotImplementedError
 
-    def smoothness_penalty(self, weight: float, edge: float | None = None):
+    def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
         """``weight`` times the mean squared gradient, growing only linearly above the gradient ``edge``
         (None: quadratic throughout); a term of the loss. None where the weight is 0 or the representation
         has no gradient to penalise."""
@@ -98,7 +98,7 @@ class TrainableField(StressField):
                 "bbox_max": self.bbox_max, "stress_scale": self.stress_scale,
                 **{f"param.{name}": np.array(value) for name, value in self.parameters().items()}}
 
-    def load_parameters(self, state):
+    def load_parameters(self, state: dict) -> None:
         values = {}
         for name, current in self.parameters().items():
             stored = np.asarray(state[f"param.{name}"], dtype=np.float32)
@@ -112,10 +112,10 @@ class TrainableField(StressField):
         return (f"{type(self).__name__}({self.describe()}, bbox {self.bbox_min.round(3).tolist()} .. "
                 f"{self.bbox_max.round(3).tolist()} mm, scale {self.stress_scale:.3g} MPa)")
 
-    def describe(self):
+    def describe(self) -> str:
         return self.kind
 
-    def parameter_count(self):
+    def parameter_count(self) -> int:
         return int(sum(np.prod(v.shape) for v in self.parameters().values()))
 
 
@@ -123,7 +123,7 @@ class DeviatoricGrid(TrainableField):
     """Five components on a regular nodal grid over the bounding box, trilinear (a 5-channel ``mi.Texture3f``)."""
     kind = "grid"
 
-    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+    def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
         self.shape = grid_shape(config.resolution, self.bbox_max - self.bbox_min)      # (nx, ny, nz)
         nx, ny, nz = self.shape
@@ -135,17 +135,17 @@ class DeviatoricGrid(TrainableField):
         self._texel_offset = 0.5 / nodes
         self._pairs = None
 
-    def deviatoric(self, p):
+    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         uvw = dr.fma(self.unit_coordinates(p), self._texel_scale, self._texel_offset)
         return tuple(self.texture.eval(uvw))
 
-    def parameters(self):
+    def parameters(self) -> dict:
         return {"grid": self.texture.tensor()}
 
-    def assign(self, values):
+    def assign(self, values: dict) -> None:
         self.texture.set_tensor(values["grid"])
 
-    def smoothness_penalty(self, weight, edge=None):
+    def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
         if weight == 0:
             return None
         if self._pairs is None:
@@ -168,7 +168,7 @@ class DeviatoricGrid(TrainableField):
         # Opaque: a literal weight that decays would rebuild the gradient kernel every iteration.
         return dr.opaque(mi.Float, weight) * dr.mean(penalty)
 
-    def describe(self):
+    def describe(self) -> str:
         return f"grid {'x'.join(map(str, self.shape))}"
 
 
@@ -188,7 +188,7 @@ class SiLU(nn.Module):
     """``x sigmoid(x) = h + h tanh(h)`` with ``h = x / 2``: the NeST activation (``drjit.nn`` has none)."""
     DRJIT_STRUCT = {}
 
-    def __call__(self, x):
+    def __call__(self, x: nn.CoopVec) -> nn.CoopVec:
         half = x * 0.5
         return half + half * dr.tanh(half)
 
@@ -206,7 +206,7 @@ class _NeuralField(TrainableField):
     def _evaluate(self, features):
         return tuple(mi.Float(x) for x in self.net(nn.CoopVec(*features)))
 
-    def assign(self, values):
+    def assign(self, values: dict) -> None:
         self.net["weights"] = values["weights"]
 
 
@@ -214,18 +214,18 @@ class MLPField(_NeuralField):
     """The NeST field: sinusoidal encoding of the position, SiLU MLP, five outputs."""
     kind = "mlp"
 
-    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+    def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
         # Shifted octaves keep the encoding's extrema off a common lattice.
         self.net = _network(config, 3, config.layers, nn.SinEncode(config.octaves, shift=0.25))
 
-    def deviatoric(self, p):
+    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         return self._evaluate(self.unit_coordinates(p))
 
-    def parameters(self):
+    def parameters(self) -> dict:
         return {"weights": self.net["weights"]}
 
-    def describe(self):
+    def describe(self) -> str:
         return f"mlp {self.config.layers}x{self.config.width}, {self.config.octaves} octaves"
 
 
@@ -233,7 +233,7 @@ class HashGridField(_NeuralField):
     """Multi-resolution hash encoding (``drjit.nn.HashGridEncoding``) and a one-layer SiLU decoder."""
     kind = "hashgrid"
 
-    def __init__(self, config, bbox_min, bbox_max, stress_scale):
+    def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
         self.encoding = nn.HashGridEncoding(
             mi.Float, 3, n_levels=config.levels, n_features_per_level=config.features_per_level,
@@ -241,19 +241,19 @@ class HashGridField(_NeuralField):
             per_level_scale=config.level_scale, init_scale=1e-2, rng=dr.rng(seed=config.seed + 1))
         self.net = _network(config, config.levels * config.features_per_level, 1)
 
-    def deviatoric(self, p):
+    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         # The encoding reads outside its tables for coordinates outside [0, 1] (values of 1e26 seen), and
         # samples on the specimen's surface can round a hair outside the bounding box.
         return self._evaluate(self.encoding(dr.clip(self.unit_coordinates(p), 0.0, 1.0)))
 
-    def parameters(self):
+    def parameters(self) -> dict:
         return {"encoding": self.encoding.data, "weights": self.net["weights"]}
 
-    def assign(self, values):
+    def assign(self, values: dict) -> None:
         self.encoding.data = values["encoding"]
         super().assign(values)
 
-    def describe(self):
+    def describe(self) -> str:
         return (f"hashgrid {self.config.levels} levels x {self.config.features_per_level} features, "
                 f"2^{int(np.log2(self.config.hashmap_size))} entries")
 
@@ -261,12 +261,12 @@ class HashGridField(_NeuralField):
 REPRESENTATIONS = {"grid": DeviatoricGrid, "hashgrid": HashGridField, "mlp": MLPField}
 
 
-def make_field(config: FieldConfig, bbox_min, bbox_max, stress_scale) -> TrainableField:
+def make_field(config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float) -> TrainableField:
     kind = choose_kind(config, np.asarray(bbox_max) - np.asarray(bbox_min))
     return REPRESENTATIONS[kind](config, bbox_min, bbox_max, stress_scale)
 
 
-def field_from_state(state) -> TrainableField:
+def field_from_state(state: dict) -> TrainableField:
     """Rebuild a field saved by :meth:`TrainableField.state`."""
     kind = str(state["kind"])
     if kind not in REPRESENTATIONS:
@@ -279,7 +279,7 @@ def field_from_state(state) -> TrainableField:
     return field
 
 
-def deviatoric_part(stress):
+def deviatoric_part(stress: np.ndarray) -> np.ndarray:
     """Deviatoric part of ``(..., 6)`` stress arrays in 3D-TSV order (NumPy)."""
     stress = np.asarray(stress, dtype=np.float64)
     mean = stress[..., :3].sum(axis=-1, keepdims=True) / 3.0

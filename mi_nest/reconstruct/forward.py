@@ -7,7 +7,7 @@ from .config import OptimizeConfig
 from .fields import TrainableField, grid_shape
 
 
-def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method: str | None = None):
+def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method: str | None = None) -> mi.Integrator:
     """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid);
     ``method`` overrides the config's forward model."""
     step = config.model.step_size

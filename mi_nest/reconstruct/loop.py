@@ -20,10 +20,12 @@ import mitsuba as mi
 import numpy as np
 
 from .. import interrupts
+from ..dataset import Dataset
 from ..fields.base import sample
 from ..scene import specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
+from .config import OptimizeConfig
 from .fields import choose_kind, make_field, refined
 from .forward import make_integrator
 from .losses import generator_loss, l1_loss
@@ -49,7 +51,8 @@ class DivergenceError(RuntimeError):
 class Run:
     """The state of one optimisation: field, optimiser, random state, history; checkpoints."""
 
-    def __init__(self, scene, dataset, config, low, high, scale, output, progress):
+    def __init__(self, scene: mi.Scene, dataset: Dataset, config: OptimizeConfig, low: np.ndarray, high: np.ndarray,
+                 scale: float, output: str | Path | None, progress: bool):
         self.scene, self.dataset, self.config = scene, dataset, config
         self.output = None if output is None else Path(output)
         self.show_progress = progress
@@ -89,7 +92,7 @@ class Run:
         starts = [0.5 * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 else [0.0]
         return list(zip(starts, resolutions))
 
-    def progress(self):
+    def progress(self) -> float:
         """How far the run is, in [0, 1]: by iterations, or by time when a time limit comes first."""
         schedule = self.config.schedule
         done = self.iteration / schedule.iterations
@@ -102,23 +105,23 @@ class Run:
         self.field.assign(optimizer)
         return optimizer
 
-    def fitting_retardance(self):
+    def fitting_retardance(self) -> bool:
         """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
         return self.config.model.method == "two-step" or self.progress() < self.config.schedule.warm_start
 
-    def integrator(self):
+    def integrator(self) -> mi.Integrator:
         return make_integrator(self.config, self.field, "two-step" if self.fitting_retardance() else None)
 
-    def learning_rate(self):
+    def learning_rate(self) -> float:
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
         optimiser = self.config.optimiser
         ratio = optimiser.final_learning_rate / optimiser.learning_rate
         return optimiser.learning_rate * ratio ** self.progress()
 
-    def in_finest_stage(self):
+    def in_finest_stage(self) -> bool:
         return self.progress() >= self.stages[-1][0]
 
-    def averaging(self):
+    def averaging(self) -> bool:
         """Whether iterates now enter the averaged result: the run's last ``average_last``, finest stage only."""
         share = self.config.regulariser.average_last
         return share > 0 and self.in_finest_stage() and self.progress() >= 1.0 - share
@@ -132,13 +135,13 @@ class Run:
         dr.eval(self.iterate_sums)
         self.iterates_averaged += 1
 
-    def smoothness_decayed(self):
+    def smoothness_decayed(self) -> float:
         """How far the smoothness weight has decayed (0 to 1): over the finest stage, once the coarse stages
         have chosen the branch that the regulariser is there to choose."""
         start = self.stages[-1][0]
         return min(1.0, max(0.0, (self.progress() - start) / (1.0 - start)))
 
-    def loop(self):
+    def loop(self) -> None:
         schedule, reporting = self.config.schedule, self.config.reporting
         integrator = self.integrator()
         phase = self.fitting_retardance()
@@ -190,7 +193,7 @@ class Run:
             if bar is not None:
                 bar.close()
 
-    def out_of_time(self):
+    def out_of_time(self) -> bool:
         time_limit = self.config.schedule.time_limit
         if time_limit is None or self.seconds < time_limit:
             return False
@@ -203,7 +206,7 @@ class Run:
             self.field = refined(self.field, resolution)
             self.optimizer = self._optimizer()
 
-    def step(self, integrator):
+    def step(self, integrator: mi.Integrator) -> float:
         optimiser = self.config.optimiser
         positions, rows, columns, targets = self.dataset.ray_batch(
             optimiser.batch_size, self.rng, views_per_batch=optimiser.views_per_batch, mask=optimiser.mask)
@@ -247,7 +250,7 @@ class Run:
             self._add_to_average()
         return value
 
-    def path_limit(self, length, samples):
+    def path_limit(self, length: mi.Float, samples: int) -> float | None:
         """The longest path (mm) whose pixels enter the loss now; None: all.
 
         Retardance, and with it phase wrapping, grows with the path through the
@@ -314,7 +317,7 @@ class Run:
         raise DivergenceError(f"optimisation diverged at iteration {self.iteration}: {reason}; {kept}. Lower the "
                               "learning_rate or the step_size")
 
-    def checkpoint(self):
+    def checkpoint(self) -> None:
         self._require_sane_field()      # a checkpoint is a good state to come back to
         self.last_good = self.iteration
         if self.output is None:
@@ -326,7 +329,7 @@ class Run:
                            self.rng.bit_generator.state, self.path_range)
         saved.save(self.output / CHECKPOINT, self.config, self.dataset)
 
-    def restore(self, path):
+    def restore(self, path: Path) -> None:
         saved = Checkpoint.load(path, self.config, self.dataset)
         self.field = saved.field
         self.optimizer = self._optimizer()
@@ -339,7 +342,7 @@ class Run:
         self.iterate_sums = {name: type(parameters[name])(total) for name, total in saved.averages.items()}
         self.iterates_averaged = saved.iterates_averaged
 
-    def result(self):
+    def result(self) -> Reconstruction:
         """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
         if self.iterates_averaged:
             self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})

@@ -1,20 +1,24 @@
 """What a reconstruction minimises: the intensities' L1 error, or the Two-step's generator error."""
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..physics import MEASUREMENTS
+from ..physics import MEASUREMENTS, Polariscope
+from ..physics.su2 import Quaternion
 from .rays import device_array
 
 
-def intensities(q, polariscopes=tuple(MEASUREMENTS.values())) -> list:
+def intensities(q: Quaternion, polariscopes: Sequence[Polariscope] = tuple(MEASUREMENTS.values())) -> list[mi.Float]:
     """The normalised intensities of ``polariscopes`` (default the nominal 16, in dataset channel order)."""
     return [scope.intensity(q) for scope in polariscopes]
 
 
-def l1_loss(q, targets, pixel_samples: int = 1, weights=None, polariscopes=tuple(MEASUREMENTS.values())) -> mi.Float:
+def l1_loss(q: Quaternion, targets: np.ndarray, pixel_samples: int = 1, weights: mi.Float | None = None,
+            polariscopes: Sequence[Polariscope] = tuple(MEASUREMENTS.values())) -> mi.Float:
     """Mean absolute error of the intensities of ``polariscopes`` against ``targets`` (N, 16).
 
     ``q`` holds ``pixel_samples`` consecutive rays per target pixel; their
@@ -32,7 +36,7 @@ def l1_loss(q, targets, pixel_samples: int = 1, weights=None, polariscopes=tuple
     return total / (count * targets.shape[1])
 
 
-def generator_loss(state, targets, pixel_samples: int = 1) -> mi.Float:
+def generator_loss(state: tuple[mi.Float, ...], targets: np.ndarray, pixel_samples: int = 1) -> mi.Float:
     """Mean squared error of the linear model's summed generator ``(b, c)`` against ``targets`` (N, 2).
 
     The Two-step baseline's tomography: least squares on unwrapped data.

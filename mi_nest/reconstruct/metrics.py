@@ -2,16 +2,20 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mitsuba as mi
 import numpy as np
 
 from .. import occupancy
-from ..fields.base import sample
+from ..fields.base import StressField, sample
 from ..io.grid import grid_nodes
 from ..physics.tensors import principal_difference
 from ..scene import specimen_bounds
-from .fields import deviatoric_part
+from .fields import TrainableField, deviatoric_part
+
+if TYPE_CHECKING:
+    import scipy.sparse
 
 # Points per axis of the evaluation lattice along the longest side of the specimen.
 EVALUATION_POINTS = 40
@@ -23,12 +27,12 @@ class StressErrors:
     principal_difference: float   # the same for sigma_max - sigma_min (the 3D principal stress difference)
     points: int
 
-    def describe(self):
+    def describe(self) -> str:
         return (f"deviatoric stress error {100 * self.deviatoric:.1f}%, principal stress difference error "
                 f"{100 * self.principal_difference:.1f}% ({self.points} points inside the specimen)")
 
 
-def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
+def evaluation_points(scene: mi.Scene, shapes: list[mi.Shape], points_per_axis: int = EVALUATION_POINTS) -> np.ndarray:
     """A lattice over the specimens' bounding box, cell centres, kept where inside a specimen."""
     low, high = specimen_bounds(shapes)
     spacing = (high - low).max() / points_per_axis
@@ -37,12 +41,12 @@ def evaluation_points(scene, shapes, points_per_axis=EVALUATION_POINTS):
     return lattice[occupancy.inside(scene, shapes, lattice)]
 
 
-def tensor_norm(s6):
+def tensor_norm(s6: np.ndarray) -> np.ndarray:
     """Frobenius norm of symmetric tensors in 6-vector form (shear components count twice)."""
     return np.sqrt((s6[..., :3] ** 2).sum(-1) + 2.0 * (s6[..., 3:] ** 2).sum(-1))
 
 
-def stress_errors(field, truth, points) -> StressErrors:
+def stress_errors(field: StressField, truth: StressField, points: np.ndarray) -> StressErrors:
     """Relative errors of ``field`` against ``truth`` at ``points`` (inside the specimen)."""
     probe = ErrorProbe(truth, points)
     estimate = deviatoric_part(sample(field, points))
@@ -57,7 +61,7 @@ class ErrorProbe:
     Cheap enough to follow the error during an optimisation (``track_error_every``).
     """
 
-    def __init__(self, truth, points):
+    def __init__(self, truth: StressField, points: np.ndarray):
         if len(points) == 0:
             raise ValueError("no evaluation point lies inside the specimen")
         self.points = points
@@ -66,15 +70,15 @@ class ErrorProbe:
         if self.scale == 0:
             raise ValueError("the true stress field is zero inside the specimen: relative errors are undefined")
 
-    def error_of(self, estimate):
+    def error_of(self, estimate: np.ndarray) -> float:
         """Relative error of deviatoric tensors ``estimate`` (N, 6) at the probe's points."""
         return float(np.sqrt((tensor_norm(estimate - self.reference) ** 2).sum()) / self.scale)
 
-    def __call__(self, field):
+    def __call__(self, field: StressField) -> float:
         return self.error_of(deviatoric_part(sample(field, self.points)))
 
 
-def representation_floor(field, truth, points):
+def representation_floor(field: TrainableField, truth: StressField, points: np.ndarray) -> float | None:
     """The deviatoric error of ``truth`` itself sampled into a grid like ``field`` (the best grid,
     :func:`best_fit_floor`, does better near stress concentrations).
 
@@ -87,7 +91,8 @@ def representation_floor(field, truth, points):
     return _grid_error(field, nodes[:, [0, 1, 3, 4, 5]] / field.stress_scale, truth, points)
 
 
-def best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=3 * EVALUATION_POINTS):
+def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, shapes: list[mi.Shape],
+                   points: np.ndarray, fit_points_per_axis: int = 3 * EVALUATION_POINTS) -> float | None:
     """The deviatoric error of the least-squares fit of ``truth`` by a grid like ``field``.
 
     Sampling the truth at the nodes (:func:`representation_floor`) is one grid,
@@ -118,7 +123,8 @@ def _grid_error(field, nodes, truth, points):
     return stress_errors(copy, truth, points).deviatoric
 
 
-def trilinear_basis(points, bbox_min, bbox_max, shape):
+def trilinear_basis(points: np.ndarray, bbox_min: np.ndarray, bbox_max: np.ndarray,
+                    shape: tuple[int, int, int]) -> scipy.sparse.csr_matrix:
     """Sparse ``(N, nx * ny * nz)`` weights of trilinear interpolation from a nodal grid spanning the box."""
     import scipy.sparse
     shape = np.asarray(shape)
@@ -136,7 +142,7 @@ def trilinear_basis(points, bbox_min, bbox_max, shape):
                                    shape=(len(u), int(np.prod(shape))))
 
 
-def psnr(predicted, measured, mask=None):
+def psnr(predicted: np.ndarray, measured: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Peak signal-to-noise ratio (dB) of normalised intensities (peak 1) over ``mask``."""
     predicted, measured = np.asarray(predicted, np.float64), np.asarray(measured, np.float64)
     if mask is not None:

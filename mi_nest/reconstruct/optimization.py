@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import interrupts
 from ..dataset import Dataset
+from ..fields.base import StressField
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
 from ..scene import load_scene, specimen_bounds, specimen_media, specimen_shapes
@@ -27,7 +28,8 @@ from .evaluation import evaluate
 from .loop import Run
 
 
-def optimize(scene, dataset, *, output=None, resume: bool = True, progress: bool = True, truth="scene",
+def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, output: str | Path | None = None,
+             resume: bool = True, progress: bool = True, truth: StressField | str | None = "scene",
              **options) -> Reconstruction:
     """Reconstruct the stress field of ``scene``'s specimens from ``dataset``.
 
@@ -80,7 +82,7 @@ def optimize(scene, dataset, *, output=None, resume: bool = True, progress: bool
     return result
 
 
-def stress_scale(media: list, low: np.ndarray, high: np.ndarray) -> float:
+def stress_scale(media: list[mi.Medium], low: np.ndarray, high: np.ndarray) -> float:
     """The stress (MPa) that gives about one fringe across the specimen: fields are stored in its units."""
     length = float(np.prod(high - low)) ** (1.0 / 3.0)
     return max(m.fringe_value for m in media) / length

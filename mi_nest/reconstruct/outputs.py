@@ -16,7 +16,7 @@ from .evaluation import predict_view
 from .rays import ViewRays
 
 
-def write_test_view(scene: mi.Scene, result: Reconstruction, output, dataset: Dataset) -> str:
+def write_test_view(scene: mi.Scene, result: Reconstruction, output: str | Path, dataset: Dataset) -> str:
     """EXR of the first held-out rotation, reconstructed beside measured, and a PNG of one channel pair;
     returns the names written, for the command's report."""
     test = dataset.split("test") or dataset.split("train")
@@ -34,7 +34,7 @@ def write_test_view(scene: mi.Scene, result: Reconstruction, output, dataset: Da
     return ", test_view.exr, test_view.png (reconstructed | measured)"
 
 
-def write_truth_beside_reconstruction(scene: mi.Scene, reconstruction: Reconstruction, output) -> str:
+def write_truth_beside_reconstruction(scene: mi.Scene, reconstruction: Reconstruction, output: str | Path) -> str:
     """Render ``scene``'s own view with its true and with the reconstructed field, EXR each and one PNG side
     by side; returns what was written, for the command's report."""
     output = Path(output)

@@ -1,13 +1,18 @@
 """Camera rays of dataset pixels: the scene's polariscope camera moved to each rotation's pose."""
 from __future__ import annotations
 
+from typing import TypeVar
+
 import mitsuba as mi
 import numpy as np
 
+from ..dataset import Dataset
 from ..scene import SceneError, polariscope_camera
 
+Array = TypeVar("Array")
 
-def device_array(kind, values):
+
+def device_array(kind: type[Array], values: np.ndarray) -> Array:
     """A Dr.Jit array of NumPy ``values`` (one row per component) in 64-byte aligned memory.
 
     Dr.Jit adopts a NumPy buffer as it is, and compiles the kernels that read it
@@ -31,7 +36,7 @@ def _aligned(row):
 class ViewRays:
     """Rays through pixels of any rotation of ``dataset``, from the scene's camera model."""
 
-    def __init__(self, scene, dataset):
+    def __init__(self, scene: mi.Scene, dataset: Dataset):
         self.dataset = dataset
         self.sensor = polariscope_camera(scene)
         size = tuple(int(x) for x in self.sensor.film().size())
@@ -40,7 +45,8 @@ class ViewRays:
                              f"{dataset.resolution[0]}x{dataset.resolution[1]}; load the scene with the dataset's "
                              "resolution (e.g. res=...)")
 
-    def rays(self, positions, rows, columns, jitter=None):
+    def rays(self, positions: np.ndarray, rows: np.ndarray, columns: np.ndarray,
+             jitter: np.ndarray | None = None) -> tuple[mi.Ray3f, mi.Vector3f]:
         """``(mi.Ray3f, right)`` for pixels ``(rows, columns)`` of rotations ``positions``.
 
         ``jitter`` (N, 2) in [0, 1) places each ray within its pixel (None: the
@@ -70,7 +76,7 @@ class ViewRays:
         return (mi.Ray3f(device_array(mi.Point3f, origins.T), device_array(mi.Vector3f, directions.T)),
                 device_array(mi.Vector3f, rights.T))
 
-    def view(self, position):
+    def view(self, position: int) -> tuple[mi.Ray3f, mi.Vector3f]:
         """Rays through every pixel centre of rotation ``position``, row-major."""
         width, height = self.dataset.resolution
         rows, columns = np.divmod(np.arange(width * height), width)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from ..dataset import Dataset
 from ..physics.recovery import quaternion_from_intensities
 
 
@@ -37,7 +38,7 @@ def _wrap(phase):
     return np.angle(np.exp(1j * phase))
 
 
-def unwrapped_generator(q, inside):
+def unwrapped_generator(q: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """``(H, W, 2)`` integrated linear-model generator ``(b, c)`` of one view's Jones quaternions ``(H, W, 4)``.
 
     ``inside`` (H, W) selects the pixels to unwrap over; outside them the result is zero.
@@ -72,12 +73,12 @@ def unwrapped_generator(q, inside):
 class RetardanceTargets:
     """Step 1 over a dataset: each view's unwrapped generator, computed when first needed and kept."""
 
-    def __init__(self, dataset, mask="mask.dolp"):
+    def __init__(self, dataset: Dataset, mask: str | None = "mask.dolp"):
         self.dataset = dataset
         self.mask = mask
         self._views = {}
 
-    def view(self, position):
+    def view(self, position: int) -> np.ndarray:
         """``(H, W, 2)`` unwrapped generator of rotation ``position``."""
         if position not in self._views:
             q = quaternion_from_intensities(self.dataset.measurements(position), self.dataset.polariscopes())
@@ -88,7 +89,7 @@ class RetardanceTargets:
             self._views[position] = unwrapped_generator(q, inside).astype(np.float32)
         return self._views[position]
 
-    def at(self, positions, rows, columns):
+    def at(self, positions: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """``(N, 2)`` targets of the pixels ``(positions, rows, columns)`` of a ray batch."""
         out = np.empty((len(positions), 2), dtype=np.float32)
         for position in np.unique(positions):
