@@ -24,7 +24,7 @@ from mi_nest.physics.tensors import COMPONENTS
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.checkpoints import load_field
 from mi_nest.reconstruct.fields import deviatoric_part
-from mi_nest.scene import specimen_bounds
+from mi_nest.scene import specimen_bounds, specimen_shapes
 
 # Shares of the most stressed evaluation points whose part of the squared error is reported.
 TOP_SHARES = (0.01, 0.05, 0.2)
@@ -117,7 +117,7 @@ def main():
     name = args.result.name
 
     scene = mi_nest.load_scene(args.scene, res=64, **defines)
-    shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
+    shapes = specimen_shapes(scene)
     truth = shapes[0].interior_medium().field
     field = load_field(args.result / "field.npz")
     points = metrics.evaluation_points(scene, shapes)

@@ -16,7 +16,7 @@ from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, Opti
 from mi_nest.reconstruct import loop, metrics
 from mi_nest.reconstruct.evaluation import dataset_loss
 from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
-from mi_nest.scene import specimen_bounds
+from mi_nest.scene import specimen_bounds, specimen_shapes
 
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
@@ -196,7 +196,7 @@ def test_stress_errors_are_relative_and_ignore_the_mean_stress():
 @pytest.mark.parametrize("z", [0.0, 2.9])
 def test_points_inside_a_disk_are_found_on_a_lattice_through_its_triangle_fans(z):
     scene = mi_nest.load_scene("disk_compression", res=8)
-    shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
+    shapes = specimen_shapes(scene)
     x, y = np.meshgrid(*2 * [np.linspace(-20, 20, 97)])
     points = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], -1)
     radius = np.hypot(points[:, 0], points[:, 1])
@@ -227,7 +227,7 @@ def test_trilinear_basis_is_the_grid_fields_own_interpolation():
 
 def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
     scene = mi_nest.load_scene("disk_compression", res=8, load=200, contact_width=4)
-    shapes = [s for s in scene.shapes() if s.interior_medium() is not None]
+    shapes = specimen_shapes(scene)
     truth = shapes[0].interior_medium().field
     points = metrics.evaluation_points(scene, shapes, 20)
     field = make_field(FieldConfig(kind="grid", resolution=8), *specimen_bounds(shapes), 1.0)

@@ -21,8 +21,8 @@ from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
 from ..render import render, render_plan
-from ..scene import (SceneError, camera_of, load_scene, polariscope_light, pose, reference_pose, scene_file,
-                     specimen_bounds, specimen_media, specimen_shapes)
+from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
+                     scene_file, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
 from . import format as fmt
 from .camera import CameraModel
@@ -71,7 +71,7 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
     low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
     media = specimen_media(scene)
-    film = scene.sensors()[0].film()
+    sensor = polariscope_camera(scene)
     light = polariscope_light(scene)
     reference = reference_pose(scene)
     return {
@@ -79,8 +79,8 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
         "software": {"mi_nest": __version__, "mitsuba": mi.__version__},
         "source": {"kind": "simulated", "scene": str(scene_file(source)), "defines": dict(defines)},
         "units": fmt.UNITS,
-        "resolution": [int(film.size()[0]), int(film.size()[1])],
-        "spp": int(settings.spp or scene.sensors()[0].sampler().sample_count()),
+        "resolution": [int(n) for n in sensor.film().size()],
+        "spp": int(settings.spp or sensor.sampler().sample_count()),
         "camera": {"projection": camera_of(scene).class_name(), "reference_to_world": reference.tolist()},
         "specimen_center": center.tolist(),
         "wavelength": sorted({m.wavelength for m in media}),

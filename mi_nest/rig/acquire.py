@@ -46,6 +46,7 @@ from ..io.lock import locked_directory, other_entries
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, measurement_name
 from . import handedness
 from .calibration import Exposure, expected_exposures, fit
+from .config import RigConfig
 from .errors import CommunicationError, RigError
 
 log = logging.getLogger(__name__)
@@ -185,7 +186,7 @@ class TwinBackend:
         """Nothing to release: the twin renders in this process."""
 
 
-def scene_index(config):
+def scene_index(config: RigConfig) -> dict:
     """``dataset.json`` fields from the rig's scene: camera reference, specimen centre, material."""
     from ..dataset.simulate import SimulationSettings, dataset_index
     from ..scene import load_scene
