@@ -7,7 +7,8 @@ import pytest
 import mi_nest
 from mi_nest.dataset import CameraModel
 from mi_nest.physics import su2
-from mi_nest.physics.polariscope import quarter_wave_plate, waveplate
+from mi_nest.physics.polariscope import (INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, measurement_name,
+                                         quarter_wave_plate, waveplate)
 from mi_nest.rig.calibration import PARAMETERS, Exposure, background_mask, expected_exposures, fit
 from mi_nest.rig.twin import Optics, SimulatedCamera, free_space, scene_renderer
 
@@ -93,11 +94,11 @@ def test_the_twin_sees_what_the_renderer_renders():
         warnings.simplefilter("ignore", RuntimeWarning)
         channels = mi_nest.render(scene).channels
     assert channels["path.length"].max() > 0
-    for qwp1 in (45.0, 90.0):
-        for qwp2 in (0.0, 45.0):
+    for qwp1 in INPUT_QWP_SETTINGS:
+        for qwp2 in OUTPUT_QWP_SETTINGS:
             twin.qwp1, state["qwp2"] = qwp1, qwp2
             for analyzer, image in twin.capture().items():
-                np.testing.assert_allclose(image, channels[f"pol.{qwp1:g}.{qwp2:g}.{analyzer}"], atol=2e-5)
+                np.testing.assert_allclose(image, channels[measurement_name(qwp1, qwp2, analyzer)], atol=2e-5)
     # Imperfect optics change what it sees.
     twin.optics = TRUE_OPTICS
     assert np.abs(twin.capture()[0] - channels["pol.90.45.0"]).max() > 0.01

@@ -8,6 +8,7 @@ import pytest
 
 from mi_nest.cli import main
 from mi_nest.dataset.camera import CameraModel, demosaic, mosaic_mask
+from mi_nest.physics.polariscope import ANALYZERS
 from mi_nest.rig.config import RigConfigError, parse
 
 GENICAM_RIG = {
@@ -19,7 +20,7 @@ GENICAM_RIG = {
 
 def _smooth_images(shape=(16, 20)):
     y, x = np.mgrid[0:shape[0], 0:shape[1]]
-    return {a: 0.3 + 0.01 * x + 0.004 * y + 0.001 * a for a in (0, 45, 90, 135)}
+    return {a: 0.3 + 0.01 * x + 0.004 * y + 0.001 * a for a in ANALYZERS}
 
 
 def test_a_raw_frame_is_split_by_the_imx250mzr_cell():

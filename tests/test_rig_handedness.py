@@ -12,6 +12,7 @@ from mi_nest.cli import main
 from mi_nest.dataset import CameraModel
 from mi_nest.rig import sim
 from mi_nest.rig.acquire import TwinBackend, calibrate, dry_run
+from mi_nest.physics.polariscope import ANALYZERS
 from mi_nest.physics.su2 import identity
 from mi_nest.rig.calibration import PARAMETERS, Exposure, _canonical, expected_exposures, fit
 from mi_nest.rig.config import RigConfigError, load
@@ -108,7 +109,7 @@ def test_the_calibration_reports_a_swapped_plate_in_one_form(fitted, swapped):
     assert [plate for plate in ("qwp1", "qwp2") if getattr(canonical, f"{plate}_swapped")] == ([swapped] if swapped
                                                                                               else [])
     for qwp1, qwp2 in expected_exposures():
-        for analyzer in (0.0, 45.0, 90.0, 135.0):
+        for analyzer in ANALYZERS:
             assert canonical.polariscope(qwp1, qwp2, analyzer).intensity(identity(0.0)) == pytest.approx(
                 found.polariscope(qwp1, qwp2, analyzer).intensity(identity(0.0)), abs=1e-12)
 

@@ -6,6 +6,7 @@ import pytest
 
 import mi_nest
 from mi_nest.physics import MEASUREMENTS, su2
+from mi_nest.physics.polariscope import ANALYZERS, measurement_name
 from mi_nest.physics.recovery import quaternion_from_intensities, quaternion_from_rotation, rotation_matrix
 from mi_nest.reconstruct import optimize
 from mi_nest.reconstruct.two_step import unwrapped_generator
@@ -70,7 +71,7 @@ def test_recovery_under_read_noise_is_a_small_rotation():
 
 
 def test_recovery_refuses_measurements_that_cannot_fix_the_jones_matrix():
-    one_exposure = [MEASUREMENTS[f"pol.45.0.{a}"] for a in (0, 45, 90, 135)]
+    one_exposure = [MEASUREMENTS[measurement_name(45, 0, a)] for a in ANALYZERS]
     with pytest.raises(ValueError, match="do not determine the Jones matrix"):
         quaternion_from_intensities(np.zeros((4, 4)), one_exposure)
     with pytest.raises(ValueError, match="do not determine the Jones matrix"):
