@@ -10,7 +10,8 @@ import mitsuba as mi
 
 from mi_nest import occupancy
 from mi_nest.fields import StressField
-from mi_nest.integration import film, guards, methods
+from mi_nest.integration import film as films
+from mi_nest.integration import guards, methods
 from mi_nest.integration.film import CHANNELS, UNDIFFERENTIATED
 from mi_nest.integration.setup import SceneSetup
 from mi_nest.physics import MEASUREMENTS, su2
@@ -115,7 +116,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.method = props.get("method", "product")
         self.points = props.get("points", "midpoint")
         self.tolerance = float(props.get("tolerance", 1e-3))
-        if "points" in props and not isinstance(self._method(), methods.Product):
+        method = self._method()     # refuses unknown names
+        if "points" in props and not isinstance(method, methods.Product):
             raise ValueError("photoelastic: 'points' applies to method 'product' only")
         if not (math.isfinite(self.tolerance) and self.tolerance > 0):
             raise ValueError(f"photoelastic: 'tolerance' must be positive, got {self.tolerance}")
@@ -137,9 +139,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return (f"PhotoelasticIntegrator[method={self.method}, step_size={self.step_size:g} mm, "
                 f"points={self.points}, jitter={self.jitter}, max_crossings={self.max_crossings}]")
 
-    def channel_names(self, film_: mi.Film) -> list[str]:
+    def channel_names(self, film: mi.Film) -> list[str]:
         """Names of the channels of the image :meth:`render` returns, in order."""
-        return film.channel_names(film_)
+        return films.channel_names(film)
 
     def check_scene(self, scene: mi.Scene, sensor: int | mi.Sensor = 0) -> None:
         """Raise :class:`~mi_nest.integration.guards.SceneSetupError` naming what the scene lacks.
@@ -168,11 +170,11 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
         with self._prepared(scene, sensor, field=field) as prepared:
-            if film.sums_pixels_directly(sensor.film()):
+            if films.sums_pixels_directly(sensor.film()):
                 image, guarded = self._render_pixel_sums(scene, sensor, seed, spp)
             else:
                 image = super().render(scene, sensor, seed, spp)
-                guarded = film.guarded_channels(image)
+                guarded = films.guarded_channels(image)
             if prepared.norm_error is not None:
                 guards.warn_if_not_unitary(float(prepared.norm_error[0]), prepared.decision.step_size)
             return image, guards.check_aliasing(*guarded)
@@ -186,7 +188,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        if not film.sums_pixels_directly(sensor.film()):
+        if not films.sums_pixels_directly(sensor.film()):
             raise ValueError("photoelastic: differentiable rendering needs a box-filtered film "
                              '(<rfilter type="box"/>) without border')
         with self._prepared(scene, sensor) as prepared, dr.suspend_grad():
@@ -289,7 +291,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
             ray, weight, _ = self.sample_rays(scene, sensor, sampler)
             main, _, aovs, _ = self.sample(dr.ADMode.Primal, scene, sampler, ray, mi.Bool(True))
-            return film.develop_pixel_sums(sensor.film(), spp, (main * weight)[0], aovs)
+            return films.develop_pixel_sums(sensor.film(), spp, (main * weight)[0], aovs)
 
     def sample(self, mode: dr.ADMode, scene: mi.Scene, sampler: mi.Sampler, ray: mi.Ray3f, active: mi.Bool,
                δL: mi.Spectrum | None = None, δaovs: list[mi.Float] | None = None, state_in: tuple | None = None,

@@ -232,6 +232,15 @@ def test_direct_pixel_sums_match_mitsubas_film_splatting(spp, pixel_format):
     assert fast[..., 0].std() > 0.01   # the box edges and jitter make pixels differ
 
 
+def test_check_scene_names_what_mi_render_reports_only_as_a_failed_operation():
+    from mi_nest.integration.guards import SceneSetupError
+    loaded = scene([box((2, 2, 2))])        # no stress medium inside
+    with pytest.raises(Exception):
+        mi.render(loaded)
+    with pytest.raises(SceneSetupError, match="the scene has no specimen"):
+        loaded.integrator().check_scene(loaded)
+
+
 @pytest.mark.parametrize("materials", [(BREWSTER, BREWSTER), (BREWSTER, 2 * BREWSTER)])
 def test_a_field_passed_to_the_render_fills_every_specimen_and_leaves_the_scene_alone(materials):
     """``mi_nest.render(scene, field=...)``: each specimen keeps its material, the field replaces its stress."""
