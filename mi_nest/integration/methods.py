@@ -319,11 +319,12 @@ class Auto:
         return Decision(method, step_size, reason)
 
 
-CHOICES = {"product": lambda point, jitter, tolerance: Product(point, jitter),
-           "linear": lambda point, jitter, tolerance: Linear(point, jitter),
-           "magnus4": lambda point, jitter, tolerance: Magnus4(),
-           "rk4": lambda point, jitter, tolerance: RK4(),
-           "auto": lambda point, jitter, tolerance: Auto(tolerance, jitter)}
+# Each choice of the ``method`` property, made from the ``point`` fraction, ``jitter`` and ``tolerance``.
+CHOICES = {Product.name: lambda point, jitter, tolerance: Product(point, jitter),
+           Linear.name: lambda point, jitter, tolerance: Linear(point, jitter),
+           Magnus4.name: lambda point, jitter, tolerance: Magnus4(),
+           RK4.name: lambda point, jitter, tolerance: RK4(),
+           Auto.name: lambda point, jitter, tolerance: Auto(tolerance, jitter)}
 
 
 def from_properties(method: str, points: str, jitter: bool, tolerance: float) -> Method | Auto:
