@@ -333,6 +333,7 @@ def main(argv=None):
         atexit.register(shutil.rmtree, cache, ignore_errors=True)
         os.environ["DRJIT_CACHE_DIR"] = cache
     import mi_nest          # first: it points Dr.Jit at a working LLVM and sets the variant
+    from mi_nest.scene import specimen_media
     import drjit as dr
     import mitsuba as mi
 
@@ -347,7 +348,7 @@ def main(argv=None):
         if args.field == "grid":
             grid_path, grid = write_grid(args, tmp)
         scene = build_scene(args, grid_path)
-        medium = scene.shapes()[0].interior_medium()
+        medium, = specimen_media(scene)
         phase_rate = medium.phase_rate
 
         # ---- Dr.Jit: the first run pays for tracing and compilation (or a kernel-cache

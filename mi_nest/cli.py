@@ -9,7 +9,7 @@ import warnings
 from pathlib import Path
 
 from . import interrupts
-from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo, write_render
+from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
 from .reconstruct import DivergenceError
 from .rig.errors import RigError
 from .scene import parse_define
@@ -170,7 +170,7 @@ def _parser():
 def _render(args):
     from . import load_scene, render
     scene = load_scene(args.scene, **dict(args.defines))
-    write_render(render(scene, spp=args.spp, seed=args.seed, progress=not args.quiet), args.output, args.png)
+    render(scene, spp=args.spp, seed=args.seed, progress=not args.quiet).write(args.output, args.png)
 
 
 def _demo(args):

@@ -8,8 +8,8 @@ from pathlib import Path
 from .dataset import Dataset, SimulationSettings, simulate
 from .reconstruct import REGULARISED, Reconstruction, optimize
 from .reconstruct.outputs import write_test_view, write_truth_beside_reconstruction
-from .render import RenderResult, render
-from .scene import load_scene, scene_path
+from .render import render
+from .scene import load_scene, scene_path, specimen_media
 
 DEFAULT_SCENE = "disk_compression"
 # The demo's loop: a load whose fringes a 48x48 camera resolves, spread over a 4 mm contact as platens do (point
@@ -19,23 +19,13 @@ DEMO_LOAD, DEMO_CONTACT, DEMO_RES, DEMO_ROTATIONS = 60.0, 4.0, 48, 12
 DEMO_GRID, DEMO_ITERATIONS = 32, 4000
 
 
-def write_render(result: RenderResult, output: str | Path, png: str | Path | None = None) -> None:
-    """Write ``result`` as an EXR (and a PNG of its main channel) and say where."""
-    result.write_exr(output)
-    print(f"wrote {Path(output).resolve()} ({len(result.channels)} channels, {result.main.shape[1]}x"
-          f"{result.main.shape[0]}, {result.seconds:.2f} s)")
-    if png:
-        result.write_png(png)
-        print(f"wrote {Path(png).resolve()}")
-
-
 def run_demo(output_dir: str | Path, iterations: int = DEMO_ITERATIONS) -> Reconstruction:
     """Render the default scene, then the whole NeST loop on it: simulate, reconstruct, compare."""
     out = Path(output_dir)
     scene = load_scene(scene_path(DEFAULT_SCENE))
     result = render(scene, progress=True)
-    write_render(result, out / f"{DEFAULT_SCENE}.exr", png=out / f"{DEFAULT_SCENE}.png")
-    medium = scene.shapes()[0].interior_medium()
+    result.write(out / f"{DEFAULT_SCENE}.exr", png=out / f"{DEFAULT_SCENE}.png")
+    medium, = specimen_media(scene)
     disk = medium.field
     order = 8 * disk.load / (math.pi * disk.diameter * medium.fringe_value)
     print(f"disk under diametral compression, dark-field circular polariscope: closed-form fringe order "

@@ -6,6 +6,7 @@ import resource
 import time
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -70,6 +71,15 @@ class RenderResult:
     def write_png(self, path, channel="Y"):
         from .io.preview import write_preview
         write_preview(path, self.channels[channel])
+
+    def write(self, output: str | Path, png: str | Path | None = None) -> None:
+        """Write the EXR (and a PNG of the main channel) and say where."""
+        self.write_exr(output)
+        print(f"wrote {Path(output).resolve()} ({len(self.channels)} channels, {self.main.shape[1]}x"
+              f"{self.main.shape[0]}, {self.seconds:.2f} s)")
+        if png:
+            self.write_png(png)
+            print(f"wrote {Path(png).resolve()}")
 
 
 def render(scene, spp=None, seed=0, passes=None, progress=False, field: StressField | None = None) -> RenderResult:

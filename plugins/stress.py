@@ -55,7 +55,8 @@ class StressMedium(mi.Medium):
     stress field in MPa; scene lengths are mm, so the retardance of a constant
     step of length L is ``2 pi C L (sigma_1 - sigma_2) / lambda`` with no other
     factor. Occupancy is the shape itself. Only the ``photoelastic`` integrator
-    reads this medium: it calls :py:meth:`phase_tensor` directly.
+    reads this medium: it samples its ``field`` at ``phase_rate`` per mm
+    (``mi_nest.integration.setup``), or a field the caller passes in its place.
 
     .. tabs::
 
@@ -99,10 +100,6 @@ class StressMedium(mi.Medium):
     def sample(self, points):
         """Stress (MPa) at NumPy points ``(N, 3)`` (mm) as an ``(N, 6)`` NumPy array."""
         return sample_field(self.field, points)
-
-    def phase_tensor(self, p):
-        """``pi C / lambda`` times the stress: phase per mm of the step generator."""
-        return tuple(self.phase_rate * s for s in self.field.eval(p))
 
     def traverse(self, callback):
         self.field.traverse(callback)

@@ -398,3 +398,41 @@ def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
     assert (tmp_path / "run" / "checkpoint.npz").is_file()
     # The schedules follow the clock: the last learning rate is the final one.
     assert result.history[-1]["learning_rate"] == pytest.approx(OptimizeConfig().optimiser.final_learning_rate, rel=0.05)
+
+
+def test_results_and_checkpoints_written_before_the_config_groups_still_load(tiny_dataset, tmp_path):
+    """Before the configuration had groups, results recorded flat options, the field's (with the regulariser's
+    smoothness) under "field", and the field's own state carried the smoothness too."""
+    import json
+
+    output = tmp_path / "run"
+    result = optimize(_scene(), tiny_dataset, output=output, iterations=20, kind="grid", resolution=6,
+                      smoothness=1e-4, checkpoint_every=10, progress=False)
+    directory = result.save(tmp_path / "result")
+    record = json.loads((directory / "reconstruction.json").read_text())
+    groups = record["config"]
+    flat = {k: v for name, group in groups.items() if name not in ("field", "regulariser") for k, v in group.items()}
+    flat["average_last"] = groups["regulariser"]["average_last"]
+    flat["field"] = {**groups["field"], **{k: v for k, v in groups["regulariser"].items() if k != "average_last"}}
+    (directory / "reconstruction.json").write_text(json.dumps({**record, "config": flat}))
+
+    def with_old_field_config(path, prefix=""):
+        with np.load(path) as data:
+            state = {key: data[key] for key in data.files}
+        key = f"{prefix}config"
+        state[key] = json.dumps({**json.loads(str(state[key])), "smoothness": 1e-4, "smoothness_edge": None})
+        if prefix:
+            state["config"] = json.dumps(flat)
+        np.savez(path, **state)
+
+    with_old_field_config(directory / "field.npz")
+    loaded = Reconstruction.load(directory)
+    assert loaded.config == result.config and loaded.config.regulariser.smoothness == 1e-4
+    for key, value in result.field.state().items():
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(loaded.field.state()[key], value)
+    # an old checkpoint of the same run resumes instead of being refused as another run's
+    with_old_field_config(output / "checkpoint.npz", prefix="field.")
+    resumed = optimize(_scene(), tiny_dataset, output=output, iterations=20, kind="grid", resolution=6,
+                       smoothness=1e-4, checkpoint_every=10, progress=False)
+    assert len(resumed.history) == 20

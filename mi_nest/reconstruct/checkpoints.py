@@ -62,7 +62,7 @@ class Checkpoint:
         """The checkpoint at ``path``; :class:`CheckpointError` if it is unreadable, cut short, or of a run
         with another ``config`` or ``dataset``."""
         state = _read_whole(path)
-        if json.loads(str(state["config"])) != config.to_dict() or \
+        if OptimizeConfig.from_dict(json.loads(str(state["config"]))).to_dict() != config.to_dict() or \
                 str(state["dataset"]) != str(dataset.directory.resolve()):
             raise CheckpointError(f"{path} is a checkpoint of another run (other options or dataset); choose "
                                   "another output directory")

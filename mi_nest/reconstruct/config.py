@@ -200,4 +200,9 @@ class OptimizeConfig:
 
     @classmethod
     def from_dict(cls, record: dict) -> OptimizeConfig:
-        return cls(**{name: group(**record[name]) for name, group in get_type_hints(cls).items()})
+        """What :meth:`to_dict` wrote, or the flat options that results written before the groups recorded."""
+        groups = get_type_hints(cls)
+        if set(groups) <= set(record):
+            return cls(**{name: group(**record[name]) for name, group in groups.items()})
+        # Before the groups: flat options, with the field's (and the regulariser's smoothness) under "field".
+        return cls(**{**{k: v for k, v in record.items() if k != "field"}, **record.get("field", {})})

@@ -15,6 +15,7 @@ optimiser's variables), ``state()``/``from_state()`` (NumPy, for checkpoints).
 from __future__ import annotations
 
 from dataclasses import asdict, replace
+from dataclasses import fields as dataclass_fields
 
 import drjit as dr
 import drjit.nn as nn
@@ -23,7 +24,7 @@ import numpy as np
 
 from ..fields.base import StressField
 from ..io.grid import grid_nodes
-from .config import FieldConfig
+from .config import FieldConfig, Regulariser
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
 
@@ -273,7 +274,10 @@ def field_from_state(state: dict) -> TrainableField:
         raise ValueError(f"unknown field kind '{kind}' in saved state")
     config = state["config"]
     if not isinstance(config, FieldConfig):
-        config = FieldConfig(**{k: (v.item() if hasattr(v, "item") else v) for k, v in dict(config).items()})
+        # Fields saved before the regulariser had its own group recorded its options with them.
+        regulariser_options = {f.name for f in dataclass_fields(Regulariser)} - {f.name for f in dataclass_fields(FieldConfig)}
+        config = FieldConfig(**{k: (v.item() if hasattr(v, "item") else v) for k, v in dict(config).items()
+                                if k not in regulariser_options})
     field = REPRESENTATIONS[kind](config, state["bbox_min"], state["bbox_max"], float(state["stress_scale"]))
     field.load_parameters(state)
     return field
