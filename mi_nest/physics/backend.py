@@ -6,7 +6,7 @@ variant) select Dr.Jit, everything else (NumPy arrays, Python floats) NumPy.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Union
+from typing import TYPE_CHECKING, Callable, Sequence, Union
 
 import numpy as np
 
@@ -27,27 +27,28 @@ class _NumPyOps:
     select = staticmethod(np.where)
 
     @staticmethod
-    def sincos(x):
+    def sincos(x: Array) -> tuple[Array, Array]:
         return np.sin(x), np.cos(x)
 
     @staticmethod
-    def rsqrt(x):
+    def rsqrt(x: Array) -> Array:
         return 1.0 / np.sqrt(x)
 
     @staticmethod
-    def replace_where(cond, compute, current, args):
+    def replace_where(cond: np.ndarray, compute: Callable[..., Sequence[Array]], current: Sequence[Array],
+                      args: Sequence[Array]) -> tuple[Array, ...]:
         """``compute(*args)`` where ``cond`` holds, ``current`` elsewhere."""
         if not np.any(cond):
             return current
         return tuple(np.where(cond, new, old) for new, old in zip(compute(*args), current))
 
     @staticmethod
-    def sign(x):
+    def sign(x: Array) -> Array:
         return np.where(x < 0, -1.0, 1.0)
 
 
 class _DrJitOps:
-    def __init__(self):
+    def __init__(self) -> None:
         import drjit as dr
         self.sqrt = dr.sqrt
         self.sin = dr.sin
@@ -59,7 +60,8 @@ class _DrJitOps:
         self.sincos = dr.sincos
         self.rsqrt = dr.rsqrt
 
-        def replace_where(cond, compute, current, args):
+        def replace_where(cond: drjit.ArrayBase, compute: Callable[..., Sequence[Array]],
+                          current: Sequence[Array], args: Sequence[Array]) -> tuple[Array, ...]:
             # A symbolic if: LLVM skips ``compute`` for every packet with no lane in ``cond``. Both
             # branches take everything they read as arguments: derivatives do not flow through
             # values a symbolic branch captures.

@@ -17,9 +17,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
+
+from .backend import Array
 
 # J = a B_a + b B_b + c B_c + d B_d (see su2.py).
 _BASIS = np.array([
@@ -30,20 +32,20 @@ _BASIS = np.array([
 ], dtype=np.complex128)
 
 
-def rotation(angle_deg):
+def rotation(angle_deg: float) -> np.ndarray:
     """2D rotation by ``angle_deg`` from u towards v."""
     t = np.deg2rad(angle_deg)
     return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]], dtype=np.complex128)
 
 
-def linear_polarizer(alpha_deg):
+def linear_polarizer(alpha_deg: float) -> np.ndarray:
     """Jones matrix of a linear polariser transmitting ``(cos alpha, sin alpha)``."""
     t = np.deg2rad(alpha_deg)
     p = np.array([np.cos(t), np.sin(t)])
     return np.outer(p, p).astype(np.complex128)
 
 
-def waveplate(beta_deg, retardance_deg=90.0):
+def waveplate(beta_deg: float, retardance_deg: float = 90.0) -> np.ndarray:
     """Linear retarder with fast axis at ``beta``: ``R(beta) diag(1, exp(-i delta)) R(-beta)``.
 
     The slow component lags by ``delta``, a negative phase under ``exp(+i omega t)``.
@@ -51,7 +53,7 @@ def waveplate(beta_deg, retardance_deg=90.0):
     return rotation(beta_deg) @ np.diag([1, np.exp(-1j * np.deg2rad(retardance_deg))]) @ rotation(-beta_deg)
 
 
-def quarter_wave_plate(beta_deg):
+def quarter_wave_plate(beta_deg: float) -> np.ndarray:
     """QWP with fast axis at ``beta``: ``R(beta) diag(1, -i) R(-beta)``."""
     return waveplate(beta_deg, 90.0)
 
@@ -70,12 +72,12 @@ class Polariscope:
     input_retardance: float = 90.0
     output_retardance: float = 90.0
 
-    def input_state(self):
+    def input_state(self) -> np.ndarray:
         t = np.deg2rad(self.polarizer)
         e = np.array([np.cos(t), np.sin(t)], dtype=np.complex128)
         return e if self.input_qwp is None else waveplate(self.input_qwp, self.input_retardance) @ e
 
-    def output_rows(self):
+    def output_rows(self) -> np.ndarray:
         """Rows ``w^T`` whose squared amplitudes add up to the detected intensity."""
         rows = np.eye(2, dtype=np.complex128)
         if self.output_qwp is not None:
@@ -85,11 +87,11 @@ class Polariscope:
             rows = np.array([[np.cos(t), np.sin(t)]]) @ rows
         return rows
 
-    def coefficients(self):
+    def coefficients(self) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], ...]:
         """Per output row, the real and imaginary parts of ``kappa`` as float tuples."""
         return _coefficients(self)
 
-    def intensity(self, q):
+    def intensity(self, q: Sequence[Array]) -> Array:
         """Detected intensity for the quaternion ``q`` (NumPy or Dr.Jit arrays)."""
         total = 0.0
         for re, im in self.coefficients():
@@ -98,7 +100,7 @@ class Polariscope:
             total = total + amp_re * amp_re + amp_im * amp_im
         return total
 
-    def matrix(self, J):
+    def matrix(self, J: np.ndarray) -> np.ndarray:
         """Full system matrix for a Jones matrix ``J`` (NumPy; used by tests and calibration)."""
         system = J @ (self.input_state()[:, None])
         return self.output_rows() @ system
@@ -135,6 +137,6 @@ MEASUREMENTS = {
 }
 
 
-def measurement_intensities(q):
+def measurement_intensities(q: Sequence[Array]) -> dict[str, Array]:
     """The 16 intensities ``{"pol.<b1>.<b2>.<a2>": I}`` of docs/physics.md section 6."""
     return {name: scope.intensity(q) for name, scope in MEASUREMENTS.items()}

@@ -5,10 +5,14 @@ vectors as 3-sequences of components (a Dr.Jit ``Vector3f`` or a tuple of arrays
 """
 from __future__ import annotations
 
-from .tensors import cross, dot, normalize
+from .backend import Array
+from .tensors import Tensor, Vector, cross, dot, normalize
+
+# The 6-tuples ``(alpha, beta)`` of :func:`projection_coefficients`.
+Coefficients = tuple[Tensor, Tensor]
 
 
-def transverse_basis(k, right):
+def transverse_basis(k: Vector, right: Vector) -> tuple[tuple[Array, ...], tuple[Array, Array, Array]]:
     """Orthonormal ``(u, v)`` with ``u x v = k``: ``u`` is ``right`` made perpendicular to ``k``.
 
     ``k`` is the unit direction of light propagation (towards the camera) and
@@ -20,7 +24,7 @@ def transverse_basis(k, right):
     return u, v
 
 
-def projection_coefficients(u, v):
+def projection_coefficients(u: Vector, v: Vector) -> Coefficients:
     """6-tuples ``(alpha, beta)`` with ``s_uu - s_vv = alpha . s6`` and ``2 s_uv = beta . s6``.
 
     Constant along a ray, so a march computes them once and spends six
@@ -35,12 +39,12 @@ def projection_coefficients(u, v):
     return alpha, beta
 
 
-def apply_coefficients(coefficients, s6):
+def apply_coefficients(coefficients: Coefficients, s6: Tensor) -> tuple[Array, Array]:
     """``(s_uu - s_vv, 2 s_uv)`` from :func:`projection_coefficients`."""
     alpha, beta = coefficients
     return (sum(a * s for a, s in zip(alpha, s6)), sum(b * s for b, s in zip(beta, s6)))
 
 
-def project(s6, u, v):
+def project(s6: Tensor, u: Vector, v: Vector) -> tuple[Array, Array]:
     """Transverse stress difference ``(s_uu - s_vv, 2 s_uv)``: all the optics sees."""
     return apply_coefficients(projection_coefficients(u, v), s6)

@@ -13,13 +13,14 @@ linear tomography, ``mi_nest.reconstruct.two_step``).
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Iterable
 
 import numpy as np
 
-from .polariscope import MEASUREMENTS
+from .polariscope import MEASUREMENTS, Polariscope
 
 
-def rotation_matrix(q):
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
     """``(..., 3, 3)`` rotation of the unit quaternion ``q = (a, b, c, d)`` (last axis of size 4)."""
     a, b, c, d = np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)
     return np.stack([
@@ -29,7 +30,7 @@ def rotation_matrix(q):
     ], axis=-2)
 
 
-def quaternion_from_rotation(R):
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rotation_matrix` with ``a >= 0`` (Shepperd's method: the largest pivot)."""
     R = np.asarray(R, dtype=np.float64)
     trace = R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2]
@@ -71,7 +72,8 @@ def _affine_model(polariscopes):
     return solution[0], solution[1:].T
 
 
-def quaternion_from_intensities(values, polariscopes=tuple(MEASUREMENTS.values())):
+def quaternion_from_intensities(values: np.ndarray,
+                                polariscopes: Iterable[Polariscope] = tuple(MEASUREMENTS.values())) -> np.ndarray:
     """The Jones quaternion (``a >= 0``) behind intensities ``(..., N)`` measured with ``polariscopes``.
 
     Least squares: exact for noiseless data, the closest rotation otherwise.
