@@ -5,6 +5,8 @@ registers the plugins (``stress`` medium, ``photoelastic`` integrator,
 ``polariscope_light`` emitter, ``polariscope`` sensor) and registers them
 again after every variant change.
 """
+from __future__ import annotations
+
 import glob
 import os
 
@@ -22,7 +24,7 @@ import mitsuba as mi  # noqa: E402
 DEFAULT_VARIANT = "llvm_ad_mono"
 
 
-def supported_variant(variant):
+def supported_variant(variant: str | None) -> bool:
     """Plugins need a JIT, monochromatic, unpolarised variant (the Jones algebra is ours)."""
     return variant is not None and variant.endswith("_ad_mono")
 

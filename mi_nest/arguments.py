@@ -4,7 +4,7 @@ from __future__ import annotations
 import numbers
 
 
-def whole_number(name, value, minimum=1):
+def whole_number(name: str, value: object, minimum: int = 1) -> int:
     """``value`` as an ``int``: an integer (not a bool, not 2.5) of at least ``minimum``.
 
     ``TypeError`` for another type, ``ValueError`` below ``minimum``; both name ``name``.

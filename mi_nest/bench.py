@@ -16,6 +16,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -63,7 +64,11 @@ def _render(case, method, points, step, res):
     return result.channels, best
 
 
-def run_accuracy(case_names=tuple(CASES), res=256, progress=True):
+# One row of the accuracy CSV: the case and method names, then the numbers.
+Row = dict[str, str | float]
+
+
+def run_accuracy(case_names: Sequence[str] = tuple(CASES), res: int = 256, progress: bool = True) -> list[Row]:
     """Rows of ``case, method, step_mm, error (99th pct), error_max, seconds, megaray_steps, ...``."""
     rows = []
     bar = None
@@ -103,7 +108,7 @@ def _shown(error):
     return ERROR_CEILING if _blew_up(error) else max(error, ERROR_FLOOR)
 
 
-def pareto_front(points):
+def pareto_front(points: Sequence[tuple[float, float]]) -> list[int]:
     """Indices of the (seconds, error) points no other point beats in both."""
     order = sorted(range(len(points)), key=lambda i: (points[i][0], points[i][1]))
     front, best = [], float("inf")
@@ -114,7 +119,7 @@ def pareto_front(points):
     return front
 
 
-def write_results(rows, folder):
+def write_results(rows: Sequence[Row], folder: str | Path) -> tuple[Path, Path]:
     """``accuracy.csv`` and ``accuracy.png`` (error against time, a panel per case) in ``folder``."""
     import matplotlib
     matplotlib.use("Agg")

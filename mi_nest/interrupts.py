@@ -12,6 +12,7 @@ from __future__ import annotations
 import signal
 import threading
 from contextlib import contextmanager
+from typing import Iterator
 
 _received = 0       # SIGINTs since our handler was installed
 _deferring = 0      # nesting depth of deferred() blocks
@@ -30,7 +31,7 @@ def _on_sigint(signum, frame):
 
 
 @contextmanager
-def handling():
+def handling() -> Iterator[None]:
     """Install the SIGINT handler for the block (restoring the previous one after), unless it is installed.
 
     Outside :func:`deferred` it raises ``KeyboardInterrupt`` as Python's does, and
@@ -49,7 +50,7 @@ def handling():
 
 
 @contextmanager
-def deferred():
+def deferred() -> Iterator[None]:
     """Inside the block the first Ctrl-C waits for the next :func:`check` (or the end of the block)."""
     global _deferring
     with handling():
@@ -61,12 +62,12 @@ def deferred():
         check()     # a Ctrl-C after the block's last check; not reached when the block raised
 
 
-def check():
+def check() -> None:
     """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed: call it between units of work."""
     if _received:
         raise KeyboardInterrupt
 
 
-def received():
+def received() -> bool:
     """Whether Ctrl-C was pressed since the handler was installed."""
     return _received > 0

@@ -4,6 +4,8 @@ Occupancy is the specimen shape itself (ray-traced), never a learned function.
 """
 from __future__ import annotations
 
+from typing import Sequence
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -12,7 +14,7 @@ import numpy as np
 MAX_CROSSINGS = 64
 
 
-def crossings_along_lines(scene, shape, starts, k):
+def crossings_along_lines(scene: mi.Scene, shape: mi.Shape, starts: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``(crossings, lines)`` distances along ``k`` from ``starts`` where each line crosses ``shape``.
 
     Traces each line through the scene from just before its start (other shapes
@@ -46,7 +48,7 @@ def crossings_along_lines(scene, shape, starts, k):
 _PARITY_DIRECTION = np.array([0.0173, 0.0311, 1.0]) / np.linalg.norm([0.0173, 0.0311, 1.0])
 
 
-def inside(scene, shapes, points):
+def inside(scene: mi.Scene, shapes: Sequence[mi.Shape], points: np.ndarray) -> np.ndarray:
     """Which of ``points`` (N, 3) lie inside any of ``shapes``: parity of crossings along a line to each."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     k = _PARITY_DIRECTION
@@ -60,7 +62,7 @@ def inside(scene, shapes, points):
     return result
 
 
-def nudged(p, d, look):
+def nudged(p: mi.Point3f, d: mi.Vector3f, look: mi.UInt32) -> mi.Point3f:
     """``p`` moved by a surface clearance along ``d`` and across it (one way for even ``look``, another for odd).
 
     A query from there rounds Embree's edge tests differently; moving along
@@ -72,7 +74,7 @@ def nudged(p, d, look):
     return dr.fma(d + across, (1.0 + dr.max(dr.abs(p))) * mi.math.RayEpsilon, p)
 
 
-def past_surface(si, d):
+def past_surface(si: mi.SurfaceInteraction3f, d: mi.Vector3f) -> mi.Point3f:
     """Continue on the camera line, just past the surface.
 
     ``si.spawn_ray`` offsets along the normal, which moves the continued ray off

@@ -8,6 +8,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
 from . import interrupts
@@ -61,14 +62,14 @@ class RenderResult:
     aliasing: FringeAliasing | None = None          # the aliasing guard's report on the last pass
 
     @property
-    def main(self):
+    def main(self) -> np.ndarray:
         return self.channels["Y"]
 
-    def write_exr(self, path):
+    def write_exr(self, path: str | Path) -> None:
         from .io.exr import write_channels
         write_channels(path, self.channels, metadata=self.metadata)
 
-    def write_png(self, path, channel="Y"):
+    def write_png(self, path: str | Path, channel: str = "Y") -> None:
         from .io.preview import write_preview
         write_preview(path, self.channels[channel])
 
@@ -82,7 +83,8 @@ class RenderResult:
             print(f"wrote {Path(png).resolve()}")
 
 
-def render(scene, spp=None, seed=0, passes=None, progress=False, field: StressField | None = None) -> RenderResult:
+def render(scene: mi.Scene, spp: int | None = None, seed: int = 0, passes: int | None = None, progress: bool = False,
+           field: StressField | None = None) -> RenderResult:
     """Render ``scene`` (a loaded scene) and return its named channels.
 
     The samples are split into ``passes`` kernel launches of equal size (default:
@@ -135,7 +137,7 @@ def render(scene, spp=None, seed=0, passes=None, progress=False, field: StressFi
 SAMPLE_STATE_BYTES = 64
 
 
-def render_plan(scene, spp=None, passes=None):
+def render_plan(scene: mi.Scene, spp: int | None = None, passes: int | None = None) -> tuple[int, int]:
     """``(spp, passes)`` of a :func:`render` of ``scene``, checked: a photoelastic integrator, whole numbers,
     and an image that is not empty and fits in the memory this process may allocate."""
     sensor = scene.sensors()[0]
@@ -166,7 +168,7 @@ def _check_image_size(film, channels, samples_per_pass, passes):
                          "available: lower the resolution or the samples per pixel (spp)")
 
 
-def available_memory():
+def available_memory() -> int | None:
     """Bytes this process may still allocate: the least of the machine's available memory, its cgroup's
     limit and its address-space limit (None where none can be read)."""
     limits = []

@@ -157,7 +157,7 @@ def specimen_media(scene: mi.Scene) -> list[StressMedium]:
     return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
 
 
-def pose(scene: mi.Scene, to_world) -> None:
+def pose(scene: mi.Scene, to_world: np.ndarray) -> None:
     """Move the scene's polariscope camera to ``to_world`` (4x4)."""
     params = mi.traverse(camera_of(scene))
     params["to_world"] = mi.Transform4f(np.asarray(to_world, dtype=np.float32))
