@@ -13,8 +13,8 @@ import math
 import numpy as np
 from dataclasses import dataclass, field
 
-from ..physics.backend import ops
-from ..physics.tensors import add, symmetric_outer
+from ..physics.backend import Array, ops
+from ..physics.tensors import Tensor, Vector, add, symmetric_outer
 from .base import (FieldParameterError, StressField, orthonormal_frame, require_finite,
                    require_positive, unit_vector)
 
@@ -63,7 +63,7 @@ class UniformField(StressField):
         for name in ("xx", "yy", "zz", "yz", "zx", "xy"):
             require_finite(name, getattr(self, name))
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         zero = p[0] * 0.0
         return tuple(zero + s for s in (self.xx, self.yy, self.zz, self.yz, self.zx, self.xy))
 
@@ -93,7 +93,7 @@ class TwistedField(StressField):
         require_finite("origin", *self.origin)
         object.__setattr__(self, "frame", orthonormal_frame("axis", self.axis, "reference", self.reference))
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, axis = self.frame
         xp = ops(p[0])
         phi = math.radians(self.angle) + math.radians(self.rate) * _local(p, self.origin, axis)
@@ -151,7 +151,7 @@ class DiskCompressionField(StressField):
         e_x = tuple(-x for x in e_across)
         object.__setattr__(self, "frame", (e_x, e_load, axis))
 
-    def plane_stress(self, x, y):
+    def plane_stress(self, x: Array, y: Array) -> tuple[Array, Array, Array]:
         """``(s_x, s_y, t_xy)`` at disk coordinates ``(x, y)`` (mm)."""
         if self.contact_width == 0:
             return self._point_pair(x, y, self.load)
@@ -182,7 +182,7 @@ class DiskCompressionField(StressField):
         t_xy = k * ((R - y) ** 2 * x / r1_4 - (R + y) ** 2 * x / r2_4)
         return s_x, s_y, t_xy
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e_x, e_y, _ = self.frame
         s_x, s_y, t_xy = self.plane_stress(_local(p, self.center, e_x), _local(p, self.center, e_y))
         return add(symmetric_outer(s_x, e_x, e_x), symmetric_outer(s_y, e_y, e_y),
@@ -233,14 +233,14 @@ class LameCylinderField(StressField):
         object.__setattr__(self, "frame", _axis_frame("axis", self.axis))
 
     @property
-    def lame_constants(self):
+    def lame_constants(self) -> tuple[float, float]:
         """``(A, B)`` of ``s_rr = A - B/r^2``, ``s_tt = A + B/r^2`` (MPa, MPa mm^2)."""
         a2, b2 = self.inner_radius ** 2, self.outer_radius ** 2
         A = (self.internal_pressure * a2 - self.external_pressure * b2) / (b2 - a2)
         B = (self.internal_pressure - self.external_pressure) * a2 * b2 / (b2 - a2)
         return A, B
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, axis = self.frame
         x, y = _local(p, self.center, e1), _local(p, self.center, e2)
         xp = ops(x)
@@ -285,7 +285,7 @@ class ShaftTorsionField(StressField):
         require_finite("center", *self.center)
         object.__setattr__(self, "frame", _axis_frame("axis", self.axis))
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, axis = self.frame
         x, y = _local(p, self.center, e1), _local(p, self.center, e2)
         xp = ops(x)
@@ -330,10 +330,10 @@ class BeamBendingField(StressField):
         object.__setattr__(self, "frame", (e_x, e_y, e_z))
 
     @property
-    def second_moment(self):
+    def second_moment(self) -> float:
         return self.width * self.height ** 3 / 12.0
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e_x, e_y, e_z = self.frame
         y, z = _local(p, self.center, e_y), _local(p, self.center, e_z)
         xp = ops(y)
@@ -373,7 +373,7 @@ class KirschPlateField(StressField):
         object.__setattr__(self, "frame", orthonormal_frame("axis", self.axis, "load_direction",
                                                             self.load_direction))
 
-    def polar_stress(self, r, theta):
+    def polar_stress(self, r: Array, theta: Array) -> tuple[Array, Array, Array]:
         """``(s_rr, s_tt, t_rt)`` at polar coordinates ``r`` (mm), ``theta`` (rad, from the load)."""
         xp = ops(r)
         return self._polar((self.radius / r) ** 2, xp.cos(2.0 * theta), xp.sin(2.0 * theta))
@@ -386,7 +386,7 @@ class KirschPlateField(StressField):
         t_rt = -0.5 * S * (1 + 2 * q - 3 * q * q) * s2
         return s_rr, s_tt, t_rt
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, _ = self.frame
         x, y = _local(p, self.center, e1), _local(p, self.center, e2)
         xp = ops(x)
@@ -448,7 +448,7 @@ class BoussinesqField(StressField):
         require_finite("origin", *self.origin)
         object.__setattr__(self, "frame", _axis_frame("axis", self.axis))
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, axis = self.frame
         x, y, depth = (_local(p, self.origin, e) for e in (e1, e2, axis))
         xp = ops(x)
@@ -516,11 +516,11 @@ class StackedDisksField(StressField):
         object.__setattr__(self, "disk", DiskCompressionField(self.diameter, self.thickness, self.load,
                                                               contact_width=self.contact_width))
 
-    def disk_center(self, k):
+    def disk_center(self, k: int) -> tuple[float, float, float]:
         offset = k * (self.thickness + self.gap)
         return tuple(c + offset * a for c, a in zip(self.center, self.frame[2]))
 
-    def disk_field(self, k):
+    def disk_field(self, k: int) -> DiskCompressionField:
         """Disk ``k`` alone, as a :class:`DiskCompressionField`."""
         e1, e2, axis = self.frame
         angle = math.radians(k * self.angle_step)
@@ -528,7 +528,7 @@ class StackedDisksField(StressField):
         return DiskCompressionField(self.diameter, self.thickness, self.load, self.disk_center(k),
                                     axis, direction, self.contact_width)
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         e1, e2, axis = self.frame
         u, v, w = (_local(p, self.center, e) for e in (e1, e2, axis))
         xp = ops(u)

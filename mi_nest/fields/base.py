@@ -2,8 +2,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from ..physics.tensors import cross
+from ..physics.tensors import Tensor, Vector, cross
+
+if TYPE_CHECKING:
+    import mitsuba as mi
+    import numpy as np
 
 
 class StressField:
@@ -15,17 +21,17 @@ class StressField:
     ``traverse``/``parameters_changed`` like a Mitsuba object.
     """
 
-    def eval(self, p):
+    def eval(self, p: Vector) -> Tensor:
         raise NotImplementedError
 
-    def traverse(self, callback):
+    def traverse(self, callback: mi.TraversalCallback) -> None:
         pass
 
-    def parameters_changed(self, keys):
+    def parameters_changed(self, keys: list[str]) -> None:
         pass
 
 
-def sample(field, points):
+def sample(field: StressField, points: np.ndarray) -> np.ndarray:
     """``(N, 6)`` float64 stress (MPa) of ``field`` at NumPy points ``(N, 3)`` (mm), through Dr.Jit."""
     import mitsuba as mi
     import numpy as np
@@ -34,23 +40,27 @@ def sample(field, points):
     return np.stack([np.broadcast_to(np.array(v, dtype=np.float64), (len(points),)) for v in values], axis=-1)
 
 
+# A unit 3-vector of a model's frame, in world coordinates.
+Direction = tuple[float, float, float]
+
+
 class FieldParameterError(ValueError):
     """A field or model parameter is missing, unknown or out of range."""
 
 
-def require_finite(name, *values):
+def require_finite(name: str, *values: float) -> None:
     for value in values:
         if not math.isfinite(value):
             raise FieldParameterError(f"parameter '{name}' must be finite, got {value!r}")
 
 
-def require_positive(name, value):
+def require_positive(name: str, value: float) -> None:
     require_finite(name, value)
     if value <= 0:
         raise FieldParameterError(f"parameter '{name}' must be positive, got {value!r}")
 
 
-def unit_vector(name, vector):
+def unit_vector(name: str, vector: Sequence[float]) -> Direction:
     if len(vector) != 3:
         raise FieldParameterError(f"parameter '{name}' must have 3 components, got {vector!r}")
     require_finite(name, *vector)
@@ -60,7 +70,8 @@ def unit_vector(name, vector):
     return tuple(x / length for x in vector)
 
 
-def orthonormal_frame(name_axis, axis, name_ref, reference):
+def orthonormal_frame(name_axis: str, axis: Sequence[float], name_ref: str,
+                      reference: Sequence[float]) -> tuple[Direction, Direction, Direction]:
     """Right-handed ``(e1, e2, axis)`` with ``e1`` = ``reference`` made perpendicular to ``axis``."""
     axis = unit_vector(name_axis, axis)
     reference = unit_vector(name_ref, reference)

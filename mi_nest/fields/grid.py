@@ -27,14 +27,14 @@ class GridField(StressField):
         self._scale = (nodes - 1) / (nodes * (self.bbox_max - self.bbox_min))
         self._offset = 0.5 / nodes - self.bbox_min * self._scale
 
-    def eval(self, p):
+    def eval(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         uvw = dr.fma(mi.Point3f(p), self._scale, self._offset)
         return tuple(self.texture.eval(uvw))
 
-    def traverse(self, callback):
+    def traverse(self, callback: mi.TraversalCallback) -> None:
         callback.put("stress", self.texture.tensor(), mi.ParamFlags.Differentiable)
 
-    def parameters_changed(self, keys):
+    def parameters_changed(self, keys: list[str]) -> None:
         self.texture.update_inplace()
 
     def to_grid(self) -> StressGrid:

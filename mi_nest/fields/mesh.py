@@ -38,7 +38,8 @@ class TetMeshStress:
     boundary: BoundaryConditions | None = None
 
     @classmethod
-    def from_cells(cls, nodes, cells, stress, boundary=None):
+    def from_cells(cls, nodes: np.ndarray, cells: np.ndarray, stress: np.ndarray,
+                   boundary: BoundaryConditions | None = None) -> TetMeshStress:
         """Build from tetrahedra (M, 4) or hexahedra (M, 8), validating everything."""
         nodes = np.asarray(nodes, dtype=np.float64)
         cells = _node_indices(cells)
@@ -72,10 +73,10 @@ class TetMeshStress:
         return cls.from_cells(model.vertices, model.elements, model.stress, boundary=model.boundary_conditions())
 
     @property
-    def bbox(self):
+    def bbox(self) -> tuple[np.ndarray, np.ndarray]:
         return self.nodes.min(axis=0), self.nodes.max(axis=0)
 
-    def locate(self, points, chunk=200_000):
+    def locate(self, points: np.ndarray, chunk: int = 200_000) -> tuple[np.ndarray, np.ndarray]:
         """Containing tetrahedron and barycentric weights of each point (-1 where outside)."""
         points = np.asarray(points, dtype=np.float64)
         corners = self.nodes[self.tets]                                # (M, 4, 3)
@@ -114,14 +115,14 @@ class TetMeshStress:
             weights[p[inside]] = bary[inside]
         return cell, weights
 
-    def sample(self, points):
+    def sample(self, points: np.ndarray) -> np.ndarray:
         """Barycentric interpolation at ``points`` (K, 3); NaN outside the mesh."""
         cell, weights = self.locate(points)
         values = np.einsum("nk,nkc->nc", weights, self.stress[self.tets[np.maximum(cell, 0)]])
         values[cell < 0] = np.nan
         return values
 
-    def to_grid(self, resolution=64, padding=0.02):
+    def to_grid(self, resolution: int = 64, padding: float = 0.02) -> StressGrid:
         """Resample onto a nodal grid with ``resolution`` nodes along the longest axis."""
         if int(resolution) < 2:
             raise FieldParameterError(f"grid resolution must be at least 2, got {resolution}")

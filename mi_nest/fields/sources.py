@@ -12,7 +12,7 @@ import numpy as np
 from ..io.carti import read_carti_file
 from ..io.grid import GridFileError, StressGrid, load_stress_grid
 from ..io.mesh import is_mesh_npz, load_mesh_arrays
-from ..io.tsv import read_stress_file
+from ..io.tsv import TsvModel, read_stress_file
 from .mesh import TetMeshStress
 
 # 3D-TSV names its files by extension, today's first; any case is accepted.
@@ -22,23 +22,23 @@ SUFFIXES = (".npz",) + TSV_MESH_SUFFIXES + TSV_GRID_SUFFIXES
 SUPPORTED = "grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti"
 
 
-def is_stress_file(path):
+def is_stress_file(path: str | Path) -> bool:
     """Whether ``path`` names a stress file by its extension (any case)."""
     return Path(path).suffix.lower() in SUFFIXES
 
 
-def is_tsv_file(path):
+def is_tsv_file(path: str | Path) -> bool:
     return Path(path).suffix.lower() in TSV_MESH_SUFFIXES + TSV_GRID_SUFFIXES
 
 
-def read_tsv_model(path):
+def read_tsv_model(path: str | Path) -> TsvModel:
     """A 3D-TSV file of any kind as its unstructured model (grid files as hexahedra)."""
     if Path(path).suffix.lower() in TSV_MESH_SUFFIXES:
         return read_stress_file(path)
     return read_carti_file(path).model()
 
 
-def stress_file(path) -> Path:
+def stress_file(path: str | Path) -> Path:
     """The stress file ``path`` stands for: itself, or a bare file name of the shipped data
     (``kitten.stress``), as ``mi-nest render kitten`` finds a shipped scene from anywhere."""
     path = Path(path)
@@ -49,7 +49,7 @@ def stress_file(path) -> Path:
     return path
 
 
-def is_mesh_file(path):
+def is_mesh_file(path: str | Path) -> bool:
     """Whether ``path`` holds stress on a mesh (3D-TSV files, mesh ``.npz``) rather than a grid."""
     path = Path(path)
     if is_tsv_file(path):
@@ -61,7 +61,7 @@ def is_mesh_file(path):
         raise GridFileError(f"{path}: not a readable .npz stress file ({error})") from error
 
 
-def mesh_arrays(path):
+def mesh_arrays(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(nodes, cells, stress)`` of a mesh file, cells as stored (tetrahedra or hexahedra)."""
     if is_tsv_file(path):
         model = read_tsv_model(path)
@@ -69,7 +69,7 @@ def mesh_arrays(path):
     return load_mesh_arrays(path)
 
 
-def load_mesh(path) -> TetMeshStress:
+def load_mesh(path: str | Path) -> TetMeshStress:
     """The mesh of a 3D-TSV file (with its boundary conditions) or of a mesh ``.npz`` (FEM result).
 
     Cached by path and modification time: a ``specimen`` shape and its medium build it once.
@@ -86,7 +86,7 @@ def _mesh_cached(path, mtime_ns, size):
     return TetMeshStress.from_cells(*mesh_arrays(path))
 
 
-def export_vtu(path, output, resolution=64):
+def export_vtu(path: str | Path, output: str | Path, resolution: int = 64) -> str:
     """Write any stress file as ``.vtu``: meshes with their own cells, grids as hexahedra."""
     from ..io.vtk import write_grid_vtu, write_mesh_vtu
     if Path(path).is_file() and is_mesh_file(path):
@@ -99,7 +99,7 @@ def export_vtu(path, output, resolution=64):
     return "grid " + "x".join(str(n) for n in grid.stress.shape[2::-1])
 
 
-def grid_from_file(path, resolution=64):
+def grid_from_file(path: str | Path, resolution: int = 64) -> StressGrid:
     """A :class:`~mi_nest.io.grid.StressGrid` from any supported stress file.
 
     Grids and ``.TSVcarti``/``.carti`` files load at their own nodes; meshes

@@ -5,6 +5,7 @@ import glob
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -15,7 +16,7 @@ _WRITER = re.compile(re.escape(TEMPORARY_MARK) + r"(\d+)-")
 
 
 @contextmanager
-def atomic_path(path, suffix=""):
+def atomic_path(path: str | Path, suffix: str = "") -> Iterator[str]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on failure it is removed.
 
     The file gets the permissions of a normally created file (``mkstemp`` makes
@@ -40,7 +41,7 @@ def atomic_path(path, suffix=""):
             os.unlink(tmp)
 
 
-def _flush_to_disk(path):
+def _flush_to_disk(path: str) -> None:
     """Make the file's data durable before the rename that publishes it: without this a power cut can
     leave the renamed file cut short, which a resumed run would take for a finished one."""
     fd = os.open(path, os.O_RDONLY)
@@ -50,7 +51,7 @@ def _flush_to_disk(path):
         os.close(fd)
 
 
-def remove_stale_temporaries(path):
+def remove_stale_temporaries(path: str | Path) -> list[Path]:
     """Remove the temporary files of ``path`` whose writing process no longer runs; return their paths."""
     path = Path(path)
     removed = []

@@ -19,6 +19,7 @@ increasing node id.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,7 +40,7 @@ class CartesianGrid:
     node_forces: np.ndarray
     fixed_nodes: np.ndarray
 
-    def node_coordinates(self, ids):
+    def node_coordinates(self, ids: np.ndarray) -> np.ndarray:
         nelx, nely, _ = self.cells
         iy = ids % (nely + 1)
         ix = (ids // (nely + 1)) % (nelx + 1)
@@ -48,14 +49,14 @@ class CartesianGrid:
         return np.stack([self.lower[0] + ix * step[0], self.upper[1] - iy * step[1],
                          self.lower[2] + iz * step[2]], axis=1)
 
-    def hexahedra(self):
+    def hexahedra(self) -> np.ndarray:
         """Grid node ids of each solid voxel's corners in VTK order (y up: from the larger iy)."""
         nelx, nely, _ = self.cells
         iy = self.voxels % nely
         ix = (self.voxels // nely) % nelx
         iz = self.voxels // (nely * nelx)
 
-        def node(dx, dy, dz):
+        def node(dx: int, dy: int, dz: int) -> np.ndarray:
             return (iy + dy) + (nely + 1) * ((ix + dx) + (nelx + 1) * (iz + dz))
         # Corner y0 (the lower y) is the node row below: iy + 1.
         return np.stack([node(0, 1, 0), node(1, 1, 0), node(1, 0, 0), node(0, 0, 0),
@@ -71,7 +72,7 @@ class CartesianGrid:
         return TsvModel(self.node_coordinates(self.node_ids), compact[self.hexahedra()], self.stress,
                         forces, compact[self.fixed_nodes] if len(self.fixed_nodes) else self.fixed_nodes)
 
-    def grid_stress(self):
+    def grid_stress(self) -> np.ndarray:
         """Nodal stress on the full grid as (Z, Y, X, 6), y ascending; empty nodes take the nearest node."""
         nelx, nely, nelz = self.cells
         count = (nelx + 1) * (nely + 1) * (nelz + 1)
@@ -80,7 +81,7 @@ class CartesianGrid:
         known = np.zeros(count, bool)
         known[self.node_ids] = True
 
-        def on_grid(array):
+        def on_grid(array: np.ndarray) -> np.ndarray:
             # Node id order is (y fastest, then x, then z) with y descending.
             return array.reshape(nelz + 1, nelx + 1, nely + 1, -1).transpose(0, 2, 1, 3)[:, ::-1]
         return fill_from_nearest(on_grid(values), on_grid(known[:, None])[..., 0])
@@ -90,7 +91,7 @@ class CartesianGrid:
 _GRID_LINE_WITHIN = 4
 
 
-def read_carti_file(path, one_based=None) -> CartesianGrid:
+def read_carti_file(path: str | Path, one_based: bool | None = None) -> CartesianGrid:
     """Parse a ``.TSVcarti`` or ``.carti`` file; ``one_based`` defaults to what the extension says."""
     path = Path(path)
     if not path.is_file():
@@ -156,25 +157,25 @@ class _Tokens:
     def __init__(self, path, tokens):
         self.path, self.tokens, self.at = path, tokens, 0
 
-    def take(self, count):
+    def take(self, count: int) -> list[str]:
         if self.at + count > len(self.tokens):
             raise TsvFileError(f"{self.path}: file ends early (truncated file?)")
         taken = self.tokens[self.at:self.at + count]
         self.at += count
         return taken
 
-    def numbers(self, count, kind):
+    def numbers(self, count: int, kind: type[int] | type[float]) -> np.ndarray:
         values = self.take(count)
         try:
             return np.array([kind(float(v)) if kind is int else float(v) for v in values])
         except ValueError:
             raise TsvFileError(f"{self.path}: expected {count} numbers, got {' '.join(values[:6])}...") from None
 
-    def keyword_numbers(self, count, kind):
+    def keyword_numbers(self, count: int, kind: type[int] | type[float]) -> np.ndarray:
         self.take(1)
         return self.numbers(count, kind)
 
-    def section(self, width, kind):
+    def section(self, width: int, kind: type[int] | type[float]) -> np.ndarray:
         name = " ".join(self.take(2))
         rows = int(self.numbers(1, int)[0])
         table = self.numbers(rows * width, kind).reshape(rows, width)
@@ -183,8 +184,10 @@ class _Tokens:
         return table
 
 
-def write_carti_file(path, cells, lower, upper, voxels, stress_at, node_forces=(), fixed_nodes=(),
-                     element_stress=False):
+def write_carti_file(path: str | Path, cells: Sequence[int], lower: Sequence[float], upper: Sequence[float],
+                     voxels: np.ndarray, stress_at: Callable[[np.ndarray], np.ndarray],
+                     node_forces: Sequence[Sequence[float]] | np.ndarray = (),
+                     fixed_nodes: Sequence[int] | np.ndarray = (), element_stress: bool = False) -> None:
     """Write a Cartesian-grid file: today's ``.TSVcarti`` under that name (any case), else an early ``.carti``.
 
     ``stress_at(points)`` gives (K, 6) stress at the nodes of the solid voxels,

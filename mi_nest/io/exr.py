@@ -1,6 +1,7 @@
 """Multichannel EXR files addressed by channel name (OpenEXR does not keep channel order)."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,8 @@ class ExrFileError(ValueError):
     """An EXR file is missing, unreadable or lacks a requested channel."""
 
 
-def write_channels(path, channels: dict, metadata: dict | None = None, half: bool = False):
+def write_channels(path: str | Path, channels: dict[str, np.ndarray], metadata: dict | None = None,
+                   half: bool = False) -> None:
     """Write ``{name: (H, W) array}`` as one EXR, atomically (temp file + rename).
 
     ``metadata`` values are stored as string header attributes.
@@ -33,7 +35,7 @@ def write_channels(path, channels: dict, metadata: dict | None = None, half: boo
             exr.write(tmp)
 
 
-def read_metadata(path) -> dict:
+def read_metadata(path: str | Path) -> dict[str, str]:
     """The header attributes ``write_channels`` stored (as strings), by name."""
     path = Path(path)
     try:
@@ -45,7 +47,7 @@ def read_metadata(path) -> dict:
     return header
 
 
-def read_channels(path, names=None) -> dict:
+def read_channels(path: str | Path, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
     """Read channels by name as float32 ``(H, W)`` arrays; all of them when ``names`` is None."""
     path = Path(path)
     if not path.is_file():

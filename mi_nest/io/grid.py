@@ -6,6 +6,7 @@ nodes: node (0, 0, 0) at ``bbox_min``, the last node at ``bbox_max``.
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +29,7 @@ class StressGrid:
         validate_grid(self.stress, self.bbox_min, self.bbox_max, source="stress grid")
 
 
-def validate_grid(stress, bbox_min, bbox_max, source):
+def validate_grid(stress: np.ndarray, bbox_min: np.ndarray, bbox_max: np.ndarray, source: str) -> None:
     stress = np.asarray(stress)
     if stress.ndim != 4 or stress.shape[-1] != 6:
         raise GridFileError(f"{source}: array 'stress' must have shape (Z, Y, X, 6), got {stress.shape}")
@@ -45,7 +46,7 @@ def validate_grid(stress, bbox_min, bbox_max, source):
         raise GridFileError(f"{source}: bbox_max {bbox_max} must exceed bbox_min {bbox_min} on every axis")
 
 
-def load_stress_grid(path) -> StressGrid:
+def load_stress_grid(path: str | Path) -> StressGrid:
     path = Path(path)
     if not path.is_file():
         raise GridFileError(f"stress grid file not found: {path}")
@@ -64,13 +65,13 @@ def load_stress_grid(path) -> StressGrid:
     return StressGrid(stress.astype(np.float32), bbox_min.astype(np.float64), bbox_max.astype(np.float64))
 
 
-def save_stress_grid(path, grid: StressGrid):
+def save_stress_grid(path: str | Path, grid: StressGrid) -> None:
     """Write atomically (temp file + rename) so a crash never leaves half a grid."""
     with atomic_path(path, ".npz") as tmp:
         np.savez_compressed(tmp, stress=grid.stress, bbox_min=grid.bbox_min, bbox_max=grid.bbox_max)
 
 
-def grid_nodes(bbox_min, bbox_max, counts):
+def grid_nodes(bbox_min: np.ndarray, bbox_max: np.ndarray, counts: Sequence[int]) -> np.ndarray:
     """``(nz * ny * nx, 3)`` positions of the nodes of a grid with ``counts = (nx, ny, nz)`` nodes spanning
     the box, in the (z, y, x) order of a stress array."""
     axes = [np.linspace(bbox_min[i], bbox_max[i], int(counts[i])) for i in range(3)]

@@ -14,6 +14,7 @@ import os
 import socket
 import sys
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -29,7 +30,7 @@ class DirectoryInUseError(OSError):
 
 
 @contextmanager
-def locked_directory(directory):
+def locked_directory(directory: str | Path) -> Iterator[Path]:
     """Hold ``directory`` (created if missing, removed again if left empty) for this process until the block ends.
 
     Raises :class:`DirectoryInUseError` naming the run that holds it.
@@ -63,7 +64,7 @@ def locked_directory(directory):
                 directory.rmdir()
 
 
-def other_entries(directory):
+def other_entries(directory: str | Path) -> list[Path]:
     """What ``directory`` holds besides a lock file: whether it is empty for a new run."""
     return [entry for entry in Path(directory).iterdir() if entry.name != LOCK_FILE]
 

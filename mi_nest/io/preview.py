@@ -3,10 +3,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-def write_preview(path, image, vmin=0.0, vmax=1.0):
+    from .tsv import BoundaryConditions
+
+
+def write_preview(path: str | Path, image: np.ndarray, vmin: float = 0.0, vmax: float = 1.0) -> None:
     """Grey-level PNG of an intensity image, linear between ``vmin`` and ``vmax``."""
     import matplotlib
     matplotlib.use("Agg")
@@ -17,7 +24,8 @@ def write_preview(path, image, vmin=0.0, vmax=1.0):
                vmin=vmin, vmax=vmax)
 
 
-def mesh_preview_figure(nodes, surface, stress, boundary=None, title=""):
+def mesh_preview_figure(nodes: np.ndarray, surface: np.ndarray, stress: np.ndarray,
+                        boundary: BoundaryConditions | None = None, title: str = "") -> Figure:
     """A 3D view of a mesh's boundary surface coloured by von Mises stress, with its boundary conditions.
 
     ``boundary`` (:class:`~mi_nest.io.tsv.BoundaryConditions`, optional) adds the
@@ -63,7 +71,8 @@ def mesh_preview_figure(nodes, surface, stress, boundary=None, title=""):
     return figure
 
 
-def write_mesh_preview(path, nodes, surface, stress, boundary=None, title=""):
+def write_mesh_preview(path: str | Path, nodes: np.ndarray, surface: np.ndarray, stress: np.ndarray,
+                       boundary: BoundaryConditions | None = None, title: str = "") -> None:
     """Write :func:`mesh_preview_figure` as a PNG (atomically)."""
     import matplotlib.pyplot as plt
 

@@ -57,7 +57,7 @@ class BoundaryConditions:
         if not np.all(np.isfinite(self.forces)):
             raise ValueError("node forces hold NaN or inf")
 
-    def check_nodes(self, node_count):
+    def check_nodes(self, node_count: int) -> None:
         """Raise ``ValueError`` unless every node index lies in ``0..node_count - 1``."""
         for name, nodes in (("node forces", self.force_nodes), ("fixed nodes", self.fixed_nodes)):
             if len(nodes) and (nodes.min() < 0 or nodes.max() >= node_count):
@@ -65,10 +65,10 @@ class BoundaryConditions:
                                  f"(got {nodes.min()}..{nodes.max()})")
 
     @property
-    def total_force(self):
+    def total_force(self) -> np.ndarray:
         return self.forces.sum(axis=0)
 
-    def describe(self):
+    def describe(self) -> str:
         total = ", ".join(f"{v:.4g}" for v in self.total_force)
         return f"{len(self.forces)} node forces (total ({total}) N), {len(self.fixed_nodes)} fixed nodes"
 
@@ -86,7 +86,7 @@ class TsvModel:
         return BoundaryConditions(self.node_forces[:, 0], self.node_forces[:, 1:], self.fixed_nodes)
 
 
-def read_stress_file(path) -> TsvModel:
+def read_stress_file(path: str | Path) -> TsvModel:
     """Parse (and cache, keyed by path and modification time) a 3D-TSV ``.TSV`` or ``.stress`` file."""
     path = Path(path)
     if not path.is_file():
@@ -102,7 +102,7 @@ class _Header:
     element_nodes: int | None = None
     lines: dict = field(default_factory=dict)      # header name -> line number
 
-    def read(self, path, row, line):
+    def read(self, path: str, row: int, line: str) -> bool:
         """Take one header line; False when ``line`` is no header line."""
         words = line.replace(":", " : ").split()
         key = words[0].lower()
@@ -242,7 +242,8 @@ def _node_ids(path, header_row, name, table, vertex_count):
     return ids - 1
 
 
-def write_stress_file(path, vertices, elements, stress, node_forces=None, fixed_nodes=None):
+def write_stress_file(path: str | Path, vertices: np.ndarray, elements: np.ndarray, stress: np.ndarray,
+                      node_forces: np.ndarray | None = None, fixed_nodes: np.ndarray | None = None) -> None:
     """Write a 3D-TSV file (element and node ids one-based).
 
     A ``.TSV`` name (any case) gets today's header lines and always both

@@ -11,17 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from ..physics.tensors import principal_stresses, stress_matrices, von_mises
-from .grid import grid_nodes
+from .grid import StressGrid, grid_nodes
 
 
-def point_data(stress6):
+def point_data(stress6: np.ndarray) -> dict[str, np.ndarray]:
     principal = principal_stresses(stress6)
     return {"stress": stress_matrices(stress6).reshape(-1, 9), "sigma_1": principal[:, 0],
             "sigma_2": principal[:, 1], "sigma_3": principal[:, 2],
             "sigma_1_minus_sigma_3": principal[:, 0] - principal[:, 2], "von_mises": von_mises(stress6)}
 
 
-def write_mesh_vtu(path, nodes, cells, stress6):
+def write_mesh_vtu(path: str | Path, nodes: np.ndarray, cells: np.ndarray, stress6: np.ndarray) -> None:
     """Tetrahedra (M, 4) or hexahedra (M, 8), VTK node order."""
     import meshio
     cells = np.asarray(cells)
@@ -30,7 +30,7 @@ def write_mesh_vtu(path, nodes, cells, stress6):
         str(Path(path)))
 
 
-def write_grid_vtu(path, grid):
+def write_grid_vtu(path: str | Path, grid: StressGrid) -> None:
     """A :class:`~mi_nest.io.grid.StressGrid` as hexahedral cells between its nodes."""
     nz, ny, nx = grid.stress.shape[:3]
     nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
