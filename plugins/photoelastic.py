@@ -3,7 +3,7 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable, Iterator
 
 import drjit as dr
 import mitsuba as mi
@@ -179,7 +179,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 guards.warn_if_not_unitary(float(prepared.norm_error[0]), prepared.decision.step_size)
             return image, guards.check_aliasing(*guarded)
 
-    def render_backward(self, scene: mi.Scene, params, grad_in: mi.TensorXf, sensor: int | mi.Sensor = 0,
+    def render_backward(self, scene: mi.Scene, params: Any, grad_in: mi.TensorXf, sensor: int | mi.Sensor = 0,
                         seed: int = 0, spp: int = 0) -> None:
         """Reverse-mode derivative of :meth:`render` by path replay: memory does not grow with the steps.
 
@@ -206,7 +206,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             self.sample(dr.ADMode.Backward, scene, sampler, ray, mi.Bool(True), δL=mi.Spectrum(per_sample[0]),
                         δaovs=per_sample[first:], state_in=state)
 
-    def render_forward(self, scene: mi.Scene, params, sensor: int | mi.Sensor = 0, seed: int = 0,
+    def render_forward(self, scene: mi.Scene, params: Any, sensor: int | mi.Sensor = 0, seed: int = 0,
                        spp: int = 0) -> mi.TensorXf:
         raise NotImplementedError("photoelastic: forward-mode derivatives are not available; differentiate in "
                                   "reverse mode (dr.backward on the rendered image)")
@@ -225,7 +225,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             self._prepared_now = None
 
     @contextlib.contextmanager
-    def deciding_once(self, scene: mi.Scene, sensor: int | mi.Sensor = 0, field: StressField | None = None):
+    def deciding_once(self, scene: mi.Scene, sensor: int | mi.Sensor = 0,
+                      field: StressField | None = None) -> Iterator[None]:
         """Renders inside the block reuse one decision of the method, made on entry.
 
         For several passes over one unchanged scene and camera (``mi_nest.render``
@@ -339,8 +340,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return mi.Spectrum(radiance * setup.polariscope.intensity(q)), aovs
 
     @dr.syntax
-    def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32, carry,
-             segment: Callable) -> tuple[object, mi.Bool, mi.Float]:
+    def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
+             carry: object, segment: Callable) -> tuple[object, mi.Bool, mi.Float]:
         """Follow each ray through every specimen; ``carry = segment(carry, ...)`` for each inside segment.
 
         Returns ``(carry, blocked, length)``: whether an opaque shape stops the ray,
@@ -414,7 +415,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """Adjoint pass: march again, back-propagating ``state_grad`` into every step's field lookups."""
         method = prepared.decision.method
 
-        def segment(carry, segment, setup):
+        def segment(carry: object, segment: RaySegment, setup: SceneSetup) -> object:
             return method.replay(carry, state_grad, segment, setup)
         self.walk(scene, ray, prepared, active, seeds, method.replay_start(state), segment)
 

@@ -66,16 +66,18 @@ class PolariscopeCamera(mi.Sensor):
         camera.update(type=projection, film=self.film(), sampler=self.sampler())
         self.camera = mi.load_dict(camera)
 
-    def sample_ray(self, time, sample1, sample2, sample3, active=True):
+    def sample_ray(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f, sample3: mi.Point2f,
+                   active: mi.Bool = True) -> tuple[mi.Ray3f, mi.Spectrum]:
         return self.camera.sample_ray(time, sample1, sample2, sample3, active)
 
-    def sample_ray_differential(self, time, sample1, sample2, sample3, active=True):
+    def sample_ray_differential(self, time: mi.Float, sample1: mi.Float, sample2: mi.Point2f, sample3: mi.Point2f,
+                                active: mi.Bool = True) -> tuple[mi.RayDifferential3f, mi.Spectrum]:
         return self.camera.sample_ray_differential(time, sample1, sample2, sample3, active)
 
-    def world_transform(self):
+    def world_transform(self) -> mi.Transform4f:
         return self.camera.world_transform()
 
-    def to_string(self):
+    def to_string(self) -> str:
         return (f"PolariscopeCamera[projection={self.projection}, qwp={self.qwp}, "
                 f"analyzer={self.analyzer}]")
 

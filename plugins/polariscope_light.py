@@ -55,7 +55,7 @@ class PolariscopeLight(mi.Emitter):
             raise ValueError(f"polariscope_light: 'radiance' must be finite and >= 0, got {self.radiance}")
         self.m_flags = mi.EmitterFlags.Infinite
 
-    def to_string(self):
+    def to_string(self) -> str:
         return f"PolariscopeLight[polarizer={self.polarizer}, qwp={self.qwp}, radiance={self.radiance}]"
 
 

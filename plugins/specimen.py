@@ -62,7 +62,7 @@ class Specimen(mi.Mesh):
         self.filename = filename
         self.cell_count = len(mesh.tets)
 
-    def to_string(self):
+    def to_string(self) -> str:
         return f"Specimen[filename={self.filename}, vertices={self.vertex_count()}, faces={self.face_count()}]"
 
 

@@ -2,11 +2,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import mitsuba as mi
+import numpy as np
 
 from mi_nest.fields import MODELS, FieldParameterError
 from mi_nest.fields.base import sample as sample_field
+from mi_nest.physics.tensors import Tensor, Vector
 
 
 class StressMedium(mi.Medium):
@@ -90,29 +93,29 @@ class StressMedium(mi.Medium):
         self.field = _field_from_properties(props)
 
     @property
-    def fringe_value(self):
+    def fringe_value(self) -> float:
         return self.wavelength / self.stress_optic_coefficient
 
-    def stress(self, p):
+    def stress(self, p: Vector) -> Tensor:
         """Stress tensor (MPa, 3D-TSV 6-tuple) at points ``p`` (mm)."""
         return self.field.eval(p)
 
-    def sample(self, points):
+    def sample(self, points: np.ndarray) -> np.ndarray:
         """Stress (MPa) at NumPy points ``(N, 3)`` (mm) as an ``(N, 6)`` NumPy array."""
         return sample_field(self.field, points)
 
-    def traverse(self, callback):
+    def traverse(self, callback: mi.TraversalCallback) -> None:
         self.field.traverse(callback)
 
-    def parameters_changed(self, keys):
+    def parameters_changed(self, keys: list[str]) -> None:
         self.field.parameters_changed(keys)
 
-    def to_string(self):
+    def to_string(self) -> str:
         return (f"StressMedium[C={self.stress_optic_coefficient:g} B, "
                 f"wavelength={self.wavelength:g} nm, field={self.field!r}]")
 
 
-def resolve_path(filename):
+def resolve_path(filename: str | Path) -> str:
     """A file name as Mitsuba resolves it: relative to the scene file being loaded."""
     return str(mi.file_resolver().resolve(str(filename)))
 
