@@ -130,7 +130,7 @@ class FemResult:
     def summary(self):
         """The report plus where the stress and the displacement peak."""
         equivalent = von_mises(self.field.stress)
-        peak = int(np.argmax(von_mises))
+        peak = int(np.argmax(equivalent))
         moved = np.linalg.norm(self.displacement, axis=1)
         at = ", ".join(f"{v:.4g}" for v in self.field.nodes[peak])
         return (self.report.summary() + f"\nvon Mises stress up to {equivalent[peak]:.4g} MPa (node at {at}); "
