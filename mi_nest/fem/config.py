@@ -10,7 +10,8 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -19,7 +20,11 @@ class FemError(ValueError):
     """An FEM model that cannot be built or solved as specified."""
 
 
-def parse_fields(cls, data, where, *, skip=("type",), prefix_nested=True):
+Spec = TypeVar("Spec")
+
+
+def parse_fields(cls: type[Spec], data: Any, where: str, *, skip: Iterable[str] = ("type",),
+                 prefix_nested: bool = True) -> Spec:
     """``cls(**data)`` after checking ``data`` is a mapping with only ``cls``'s init fields.
 
     Errors raised while building ``cls`` get ``where`` as a prefix unless
@@ -49,7 +54,7 @@ def parse_fields(cls, data, where, *, skip=("type",), prefix_nested=True):
         raise FemError(f"{where}: {error}") from None
 
 
-def parse_typed(registry, data, where, default=None):
+def parse_typed(registry: Mapping[str, type], data: Any, where: str, default: str | None = None) -> Any:
     """Pick the class named by ``data['type']`` in ``registry`` and parse ``data`` into it."""
     if not isinstance(data, Mapping):
         raise FemError(f"{where}: expected a table with a 'type' key, got {type(data).__name__} {data!r}")
@@ -63,7 +68,7 @@ def parse_typed(registry, data, where, default=None):
     return parse_fields(registry[kind], data, where)
 
 
-def vector(name, value, length=3):
+def vector(name: str, value: Any, length: int = 3) -> tuple[float, ...]:
     """``value`` as a tuple of ``length`` finite floats (raises FemError otherwise)."""
     try:
         values = tuple(float(v) for v in np.asarray(value, dtype=np.float64).ravel())
@@ -76,7 +81,7 @@ def vector(name, value, length=3):
     return values
 
 
-def vectors(name, value):
+def vectors(name: str, value: Any) -> np.ndarray:
     """``value`` as a (K >= 1, 3) array of finite floats (raises FemError otherwise)."""
     try:
         values = np.asarray(value, dtype=np.float64)
@@ -89,7 +94,7 @@ def vectors(name, value):
     return values
 
 
-def number(name, value, *, positive=False, nonnegative=False):
+def number(name: str, value: Any, *, positive: bool = False, nonnegative: bool = False) -> float:
     """``value`` as a finite float with an optional sign requirement."""
     if isinstance(value, bool):
         raise FemError(f"'{name}' must be a number, got {value!r}")
@@ -106,5 +111,5 @@ def number(name, value, *, positive=False, nonnegative=False):
     return result
 
 
-def format_point(point):
+def format_point(point: Iterable[float]) -> str:
     return "(" + ", ".join(f"{v:g}" for v in point) + ")"

@@ -25,12 +25,17 @@ have rank 6) and names the motions left free otherwise.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .config import FemError, format_point, number, parse_fields, parse_typed, vector, vectors
 from .regions import NearestNode, Nodes, boundary_facets_in, nearest_boundary_node, nodes_at, parse_region
+
+if TYPE_CHECKING:
+    from skfem import CellBasis, MeshTet
 
 _COMPONENTS = {"x": 0, "y": 1, "z": 2}
 
@@ -136,19 +141,21 @@ class Fixture:
         object.__setattr__(self, "displacement", vector("displacement", self.displacement))
 
 
+Load = PointForce | SurfaceForce | Traction | Pressure | NodeForces
+
 LOADS = {"point_force": PointForce, "force": SurfaceForce, "traction": Traction, "pressure": Pressure,
          "node_forces": NodeForces}
 
 
-def parse_load(data, index=0):
+def parse_load(data: Mapping | Load, index: int = 0) -> Load:
     """A load from its dict form; ``type`` is one of :data:`LOADS`."""
-    if isinstance(data, tuple(LOADS.values())):
+    if isinstance(data, Load):
         return data
     label = data.get("name", f"#{index + 1}") if isinstance(data, dict) else f"#{index + 1}"
     return parse_typed(LOADS, data, f"load '{label}'")
 
 
-def parse_fixture(data, index=0):
+def parse_fixture(data: Mapping | Fixture, index: int = 0) -> Fixture:
     if isinstance(data, Fixture):
         return data
     label = data.get("name", f"#{index + 1}") if isinstance(data, dict) else f"#{index + 1}"
@@ -176,7 +183,7 @@ def _selected_facets(mesh, region, what):
     return facets
 
 
-def load_vector(basis, loads):
+def load_vector(basis: CellBasis, loads: Sequence[Load]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Global load vector (3 dofs per scalar dof ``d``: ``3 d + component``) and each load's total force (N).
 
     ``basis`` is the *scalar* Lagrange basis of the displacement components.
@@ -251,7 +258,7 @@ class Constraints:
     by_fixture: dict
 
 
-def constraints(basis, fixtures):
+def constraints(basis: CellBasis, fixtures: Sequence[Fixture]) -> Constraints:
     """Vector dofs and values prescribed by ``fixtures`` on the scalar ``basis`` (later fixtures win)."""
     if not fixtures:
         raise FemError("the model has no fixture, so it can move as a rigid body: add at least one "
@@ -285,7 +292,7 @@ _MODE_NAMES = ("translation along x", "translation along y", "translation along 
                "rotation about x", "rotation about y", "rotation about z")
 
 
-def rigid_body_modes(basis, scalar_dofs=None):
+def rigid_body_modes(basis: CellBasis, scalar_dofs: np.ndarray | None = None) -> np.ndarray:
     """(3 N, 6) rigid-body displacements at the vector dofs of the scalar ``basis``.
 
     Three translations and three rotations about the centroid.
@@ -313,7 +320,7 @@ def rigid_body_modes(basis, scalar_dofs=None):
     return modes
 
 
-def bodies(mesh):
+def bodies(mesh: MeshTet) -> list[np.ndarray]:
     """Element indices of each connected body of ``mesh`` (tetrahedra sharing a vertex are one body)."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
@@ -325,7 +332,7 @@ def bodies(mesh):
     return [np.flatnonzero(element_body == body) for body in np.unique(element_body)]
 
 
-def check_rigid_modes(basis, constraints, fixtures):
+def check_rigid_modes(basis: CellBasis, constraints: Constraints, fixtures: Sequence[Fixture]) -> None:
     """Raise :class:`FemError` if the constrained dofs leave a rigid-body motion of any body free.
 
     A rigid motion ``m = modes @ c`` of a body is free when it moves none of

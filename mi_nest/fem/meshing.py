@@ -25,12 +25,19 @@ from __future__ import annotations
 import math
 import tempfile
 from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..io.cells import signed_volumes
 from .config import FemError, number, parse_typed, vector
+
+if TYPE_CHECKING:
+    import trimesh
+    from skfem import MeshTet
 
 SURFACE_SUFFIXES = (".stl", ".ply", ".obj", ".off", ".glb", ".gltf")
 
@@ -62,7 +69,7 @@ def _stitch(inner, inner_angle, outer, outer_angle):
     return np.where(from_inner[:, None], inner_step, outer_step)
 
 
-def disk_triangles(radius, element_size):
+def disk_triangles(radius: float, element_size: float) -> tuple[np.ndarray, np.ndarray]:
     """``(points (P, 2), triangles (T, 3))`` of a disk: a centre node and rings of 6k nodes."""
     rings = max(1, round(radius / element_size))
     points, triangles = [np.zeros((1, 2))], []
@@ -80,7 +87,8 @@ def disk_triangles(radius, element_size):
     return np.concatenate(points), np.concatenate(triangles)
 
 
-def annulus_triangles(inner_radius, outer_radius, element_size):
+def annulus_triangles(inner_radius: float, outer_radius: float, element_size: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """``(points, triangles)`` of an annulus: rings about ``element_size`` apart both ways."""
     rings = max(1, round((outer_radius - inner_radius) / element_size))
     points, triangles = [], []
@@ -97,7 +105,7 @@ def annulus_triangles(inner_radius, outer_radius, element_size):
     return np.concatenate(points), np.concatenate(triangles)
 
 
-def extrude(points, triangles, height, layers):
+def extrude(points: np.ndarray, triangles: np.ndarray, height: float, layers: int) -> tuple[np.ndarray, np.ndarray]:
     """Tetrahedra ``(nodes (N, 3), tets (M, 4))`` of a cross-section extruded along z over [0, height]."""
     z = np.linspace(0.0, height, layers + 1)
     count = len(points)
@@ -136,7 +144,7 @@ def _facets_of(mesh, used, triangles, name):
         raise FemError(f"surface group '{name}' uses nodes of no tetrahedron")
     count = np.int64(mesh.p.shape[1])
 
-    def key(corners):
+    def key(corners: np.ndarray) -> np.ndarray:
         corners = np.sort(corners, axis=-1).astype(np.int64)
         return (corners[..., 0] * count + corners[..., 1]) * count + corners[..., 2]
     facet_keys = key(mesh.facets.T)
@@ -180,7 +188,7 @@ class BoxGeometry:
         if self.element_size is not None:
             object.__setattr__(self, "element_size", number("element_size", self.element_size, positive=True))
 
-    def mesh(self):
+    def mesh(self) -> MeshTet:
         from skfem import MeshTet
         h = self.element_size or max(self.size) / 10.0
         axes = [o + np.linspace(0.0, s, max(1, round(s / h)) + 1) for o, s in zip(self.origin, self.size)]
@@ -213,7 +221,7 @@ class CylinderGeometry:
         object.__setattr__(self, "height", number("height", self.height, positive=True))
         _validate_placement(self)
 
-    def mesh(self):
+    def mesh(self) -> MeshTet:
         h = self.element_size or max(self.radius / 5.0, self.height / 10.0)
         points, triangles = disk_triangles(self.radius, h)
         nodes, tets = extrude(points, triangles, self.height, max(1, round(self.height / h)))
@@ -238,7 +246,7 @@ class TubeGeometry:
                            f"'outer_radius' ({self.outer_radius:g})")
         _validate_placement(self)
 
-    def mesh(self):
+    def mesh(self) -> MeshTet:
         wall = self.outer_radius - self.inner_radius
         h = self.element_size or max(wall / 4.0, self.height / 10.0)
         points, triangles = annulus_triangles(self.inner_radius, self.outer_radius, h)
@@ -264,7 +272,7 @@ class MeshFileGeometry:
         if self.element_size is not None:
             object.__setattr__(self, "element_size", number("element_size", self.element_size, positive=True))
 
-    def mesh(self):
+    def mesh(self) -> MeshTet:
         from ..fields.sources import is_tsv_file, load_mesh
         path = Path(self.base) / Path(self.path)
         if not path.is_file():
@@ -277,19 +285,21 @@ class MeshFileGeometry:
         return read_volume_mesh(path)
 
 
+Geometry = BoxGeometry | CylinderGeometry | TubeGeometry | MeshFileGeometry
+
 GEOMETRIES = {"box": BoxGeometry, "cylinder": CylinderGeometry, "tube": TubeGeometry,
               "file": MeshFileGeometry}
 
 
-def parse_geometry(data, where="geometry"):
-    if isinstance(data, tuple(GEOMETRIES.values())):
+def parse_geometry(data: Mapping | Geometry, where: str = "geometry") -> Geometry:
+    if isinstance(data, Geometry):
         return data
     return parse_typed(GEOMETRIES, data, where)
 
 
 # --------------------------------------------------------------------------- files and gmsh
 
-def read_volume_mesh(path):
+def read_volume_mesh(path: str | Path) -> MeshTet:
     """The tetrahedra of a volume mesh file (any format meshio reads); 10-node tets keep their corners."""
     import meshio
     try:
@@ -319,7 +329,7 @@ def _surface_groups(data):
     return groups
 
 
-def require_gmsh():
+def require_gmsh() -> ModuleType:
     """The ``gmsh`` module, or a FemError saying how to install the optional extra."""
     try:
         import gmsh
@@ -330,7 +340,7 @@ def require_gmsh():
     return gmsh
 
 
-def mesh_surface(surface, element_size=None):
+def mesh_surface(surface: str | Path | trimesh.Trimesh, element_size: float | None = None) -> MeshTet:
     """Tetrahedralise a closed surface (a file trimesh reads, or a ``trimesh.Trimesh``) with gmsh.
 
     The surface is re-meshed at ``element_size`` (gmsh classifies it into

@@ -10,11 +10,15 @@ nodes at given points (the fixed and loaded nodes of a 3D-TSV file).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from .config import FemError, format_point, number, parse_typed, vector, vectors
+
+if TYPE_CHECKING:
+    from skfem import MeshTet
 
 _AXES = "xyz"
 
@@ -45,10 +49,10 @@ class Plane:
         object.__setattr__(self, "normal", _unit("normal", self.normal))
         object.__setattr__(self, "tolerance", number("tolerance", self.tolerance, positive=True))
 
-    def contains(self, points):
+    def contains(self, points: np.ndarray) -> np.ndarray:
         return np.abs((points - self.point) @ np.asarray(self.normal)) <= self.tolerance
 
-    def describe(self):
+    def describe(self) -> str:
         axis = _axis_name(self.normal)
         if axis is not None:
             offset = self.point[_AXES.index(axis)]
@@ -69,10 +73,10 @@ class Box:
         if any(lo > hi for lo, hi in zip(self.min, self.max)):
             raise FemError(f"box 'min' {format_point(self.min)} exceeds 'max' {format_point(self.max)}")
 
-    def contains(self, points):
+    def contains(self, points: np.ndarray) -> np.ndarray:
         return np.all((points >= self.min) & (points <= self.max), axis=1)
 
-    def describe(self):
+    def describe(self) -> str:
         return f"box {format_point(self.min)} to {format_point(self.max)}"
 
 
@@ -86,10 +90,10 @@ class Sphere:
         object.__setattr__(self, "center", vector("center", self.center))
         object.__setattr__(self, "radius", number("radius", self.radius, positive=True))
 
-    def contains(self, points):
+    def contains(self, points: np.ndarray) -> np.ndarray:
         return np.linalg.norm(points - self.center, axis=1) <= self.radius
 
-    def describe(self):
+    def describe(self) -> str:
         return f"sphere of radius {self.radius:g} mm around {format_point(self.center)}"
 
 
@@ -110,13 +114,13 @@ class CylindricalSurface:
         object.__setattr__(self, "axis", _unit("axis", self.axis))
         object.__setattr__(self, "tolerance", number("tolerance", self.tolerance, positive=True))
 
-    def contains(self, points):
+    def contains(self, points: np.ndarray) -> np.ndarray:
         relative = points - self.center
         along = relative @ np.asarray(self.axis)
         distance = np.linalg.norm(relative - along[:, None] * np.asarray(self.axis), axis=1)
         return np.abs(distance - self.radius) <= self.tolerance
 
-    def describe(self):
+    def describe(self) -> str:
         return (f"cylindrical surface r={self.radius:g} about {format_point(self.axis)} through "
                 f"{format_point(self.center)} within {self.tolerance:g} mm")
 
@@ -132,7 +136,7 @@ class NearestNode:
         if self.max_distance is not None:
             object.__setattr__(self, "max_distance", number("max_distance", self.max_distance, positive=True))
 
-    def describe(self):
+    def describe(self) -> str:
         return f"boundary node nearest {format_point(self.point)}"
 
 
@@ -146,7 +150,7 @@ class Nodes:
         object.__setattr__(self, "points", vectors("points", self.points))
         object.__setattr__(self, "tolerance", number("tolerance", self.tolerance, positive=True))
 
-    def describe(self):
+    def describe(self) -> str:
         return f"{len(self.points)} mesh nodes at given points"
 
 
@@ -156,13 +160,13 @@ class Predicate:
     function: Callable
     label: str = field(default="predicate")
 
-    def contains(self, points):
+    def contains(self, points: np.ndarray) -> np.ndarray:
         mask = np.asarray(self.function(points), dtype=bool)
         if mask.shape != (len(points),):
             raise FemError(f"{self.label}: predicate must return one bool per point, got shape {mask.shape}")
         return mask
 
-    def describe(self):
+    def describe(self) -> str:
         return self.label
 
 
@@ -175,22 +179,24 @@ class Group:
         if not isinstance(self.name, str) or not self.name:
             raise FemError(f"a surface group needs a non-empty 'name', got {self.name!r}")
 
-    def describe(self):
+    def describe(self) -> str:
         return f"surface group '{self.name}'"
 
+
+Region = Plane | Box | Sphere | CylindricalSurface | NearestNode | Nodes | Predicate | Group
 
 REGIONS = {"plane": Plane, "box": Box, "sphere": Sphere, "cylindrical_surface": CylindricalSurface,
            "point": NearestNode, "nodes": Nodes, "group": Group}
 
 
-def parse_region(data, where):
+def parse_region(data: Mapping | Region, where: str) -> Region:
     """A region from its dict form, e.g. ``{"type": "plane", "point": [0, 0, 10], "normal": [0, 0, 1]}``."""
-    if isinstance(data, (Plane, Box, Sphere, CylindricalSurface, NearestNode, Nodes, Predicate, Group)):
+    if isinstance(data, Region):
         return data
     return parse_typed(REGIONS, data, where)
 
 
-def boundary_facets_in(mesh, region):
+def boundary_facets_in(mesh: MeshTet, region: Region) -> np.ndarray:
     """Indices of the boundary facets of ``mesh`` whose corners all lie in ``region`` (or in its group)."""
     if isinstance(region, Group):
         groups = mesh.boundaries or {}
@@ -204,7 +210,7 @@ def boundary_facets_in(mesh, region):
     return facets[np.all(inside, axis=0)]
 
 
-def nearest_boundary_node(mesh, point):
+def nearest_boundary_node(mesh: MeshTet, point: Sequence[float]) -> tuple[int, float]:
     """``(node index, distance)`` of the boundary node of ``mesh`` nearest ``point``."""
     nodes = mesh.boundary_nodes()
     distance = np.linalg.norm(mesh.p[:, nodes].T - np.asarray(point), axis=1)
@@ -212,7 +218,7 @@ def nearest_boundary_node(mesh, point):
     return int(nodes[best]), float(distance[best])
 
 
-def nodes_at(mesh, region, what):
+def nodes_at(mesh: MeshTet, region: Nodes, what: str) -> np.ndarray:
     """Indices of the nodes of ``mesh`` at the points of a :class:`Nodes` region."""
     from scipy.spatial import cKDTree
     distance, index = cKDTree(mesh.p.T).query(region.points)

@@ -24,7 +24,10 @@ stress of the tetrahedra around each vertex (``"average"``, local and cheap).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,6 +37,11 @@ from ..io.mesh import save_mesh_stress
 from ..physics.tensors import von_mises
 from .config import FemError, number, parse_fields
 from .loads import check_rigid_modes, constraints, load_vector, rigid_body_modes
+
+if TYPE_CHECKING:
+    from skfem import CellBasis, MeshTet
+
+    from .loads import Fixture, Load
 
 METHODS = ("auto", "amg", "direct")
 RECOVERIES = ("l2", "average")
@@ -54,7 +62,7 @@ class Material:
         object.__setattr__(self, "poisson_ratio", nu)
 
     @property
-    def lame(self):
+    def lame(self) -> tuple[float, float]:
         """``(lambda, mu)`` in MPa."""
         E, nu = self.youngs_modulus, self.poisson_ratio
         return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
@@ -102,7 +110,7 @@ class SolveReport:
     applied: dict = field(default_factory=dict)      # load name -> total force (3,)
     reactions: dict = field(default_factory=dict)    # fixture name -> reaction force (3,)
 
-    def summary(self):
+    def summary(self) -> str:
         lines = [f"{self.tets} tets, {self.nodes} nodes, P{self.element_order}: {self.dofs} dofs "
                  f"({self.constrained_dofs} fixed)",
                  f"solver {self.solver}"
@@ -123,11 +131,11 @@ class FemResult:
     mesh: object
     report: SolveReport
 
-    def save(self, path):
+    def save(self, path: str | Path) -> None:
         """Write the stress as a mesh ``.npz`` (:func:`mi_nest.io.mesh.save_mesh_stress`)."""
         save_mesh_stress(path, self.field.nodes, self.field.tets, self.field.stress)
 
-    def summary(self):
+    def summary(self) -> str:
         """The report plus where the stress and the displacement peak."""
         equivalent = von_mises(self.field.stress)
         peak = int(np.argmax(equivalent))
@@ -137,7 +145,7 @@ class FemResult:
                 f"displacement up to {moved.max():.4g} mm")
 
 
-def scalar_basis(mesh, order):
+def scalar_basis(mesh: MeshTet, order: int) -> CellBasis:
     """The scalar P1/P2 basis of one displacement component (vector dof of scalar dof d: 3 d + c).
 
     Quadrature of order 2 integrates the stiffness exactly for P1 and P2 (its
@@ -151,13 +159,13 @@ def scalar_basis(mesh, order):
     return Basis(mesh, ElementTetP1() if order == 1 else ElementTetP2(), intorder=2)
 
 
-def shape_gradients(basis):
+def shape_gradients(basis: CellBasis) -> np.ndarray:
     """Gradients of the scalar shape functions: (elements, quadrature points, functions, 3)."""
     gradients = np.stack([basis.basis[a][0].grad for a in range(basis.Nbfun)])   # (a, i, element, q)
     return gradients.transpose(2, 3, 0, 1)
 
 
-def stiffness(basis, material, chunk=8192):
+def stiffness(basis: CellBasis, material: Material, chunk: int = 8192) -> sp.csr_matrix:
     """Global stiffness matrix (CSR, 3 N x 3 N) of isotropic linear elasticity on the scalar ``basis``.
 
     The bilinear form of skfem's ``linear_elasticity``,
@@ -226,7 +234,8 @@ def _solve_amg(A, b, modes, config):
     return u, len(residuals) - 1
 
 
-def solve_linear_system(A, b, modes, config):
+def solve_linear_system(A: sp.csr_matrix, b: np.ndarray, modes: np.ndarray, config: SolverConfig
+                        ) -> tuple[np.ndarray, str, int]:
     """``(u, method, iterations)`` with the method ``config`` asks for."""
     method = config.method
     if method == "auto":
@@ -238,7 +247,7 @@ def solve_linear_system(A, b, modes, config):
     return u, method, iterations
 
 
-def element_stress(basis, u, material):
+def element_stress(basis: CellBasis, u: np.ndarray, material: Material) -> np.ndarray:
     """Stress at the quadrature points: (6, elements, points), 3D-TSV order."""
     lam, mu = material.lame
     nodal = u.reshape(-1, 3)[basis.element_dofs.T]              # (e, a, component)
@@ -248,7 +257,7 @@ def element_stress(basis, u, material):
     return np.stack([2 * mu * strain[i, j] + (lam * trace if i == j else 0.0) for i, j in _VOIGT])
 
 
-def nodal_stress(basis, stress, recovery="l2"):
+def nodal_stress(basis: CellBasis, stress: np.ndarray, recovery: str = "l2") -> np.ndarray:
     """(vertices, 6) nodal stress from quadrature-point values (see the module doc)."""
     from pyamg.krylov import cg
     from skfem import BilinearForm, ElementTetP1, LinearForm
@@ -277,7 +286,9 @@ def nodal_stress(basis, stress, recovery="l2"):
     return result
 
 
-def solve(mesh, material, loads, fixtures, element_order=1, solver=SolverConfig()):
+def solve(mesh: MeshTet, material: Material | Mapping, loads: Sequence[Load | Mapping],
+          fixtures: Sequence[Fixture | Mapping], element_order: int = 1,
+          solver: SolverConfig = SolverConfig()) -> FemResult:
     """Solve the elasticity problem; returns a :class:`FemResult`.
 
     ``mesh`` is a ``skfem.MeshTet``; ``loads`` and ``fixtures`` are lists of

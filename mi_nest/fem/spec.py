@@ -43,13 +43,19 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..fields.sources import is_tsv_file, load_mesh
 from .config import FemError, parse_fields
 from .loads import parse_fixture, parse_load
 from .meshing import MeshFileGeometry, parse_geometry
-from .solve import Material, SolverConfig, solve
+from .solve import FemResult, Material, SolverConfig, solve
+
+if TYPE_CHECKING:
+    from .loads import Fixture, Load
+    from .regions import Region
 
 
 def _parse_list(items, parse, key):
@@ -81,20 +87,20 @@ class FemSpec:
         object.__setattr__(self, "element_order", int(self.element_order))     # JSON may say 2.0
 
     @classmethod
-    def from_dict(cls, data, base=""):
+    def from_dict(cls, data: Mapping, base: str | Path = "") -> FemSpec:
         """Parse a spec; relative mesh file paths resolve against ``base``."""
         spec = parse_fields(cls, data, "spec", skip=(), prefix_nested=False)
         if isinstance(spec.geometry, MeshFileGeometry) and not spec.geometry.base:
             spec = dataclasses.replace(spec, geometry=dataclasses.replace(spec.geometry, base=str(base)))
         return spec
 
-    def run(self):
+    def run(self) -> FemResult:
         """Mesh and solve: a :class:`~mi_nest.fem.solve.FemResult`."""
         return solve(self.geometry.mesh(), self.material, self.loads, self.fixtures,
                      element_order=self.element_order, solver=self.solver)
 
 
-def load_spec(path):
+def load_spec(path: str | Path) -> FemSpec:
     """A :class:`FemSpec` from a ``.toml`` or ``.json`` file."""
     path = Path(path)
     if not path.is_file():
@@ -124,7 +130,7 @@ def load_spec(path):
         raise FemError(f"{path}: {error}") from None
 
 
-def parse_where(text):
+def parse_where(text: str) -> Region:
     """``x=V`` / ``y=V`` / ``z=V`` (an axis-aligned plane) or a surface group name."""
     from .regions import Group, Plane
     axis, sep, value = text.partition("=")
@@ -143,8 +149,9 @@ def parse_where(text):
     return Group(text)
 
 
-def spec_from_flags(mesh, fixes, loads=(), pressures=(), material=(3000.0, 0.37), element_order=1,
-                    element_size=None):
+def spec_from_flags(mesh: str | Path, fixes: Sequence[str], loads: Sequence[str] = (),
+                    pressures: Sequence[str] = (), material: tuple[float, float] = (3000.0, 0.37),
+                    element_order: int = 1, element_size: float | None = None) -> FemSpec:
     """A :class:`FemSpec` from command-line style strings.
 
     ``fixes``: ``WHERE`` or ``WHERE:xz`` (the clamped components); ``loads``:
@@ -153,13 +160,13 @@ def spec_from_flags(mesh, fixes, loads=(), pressures=(), material=(3000.0, 0.37)
     """
     from .loads import Fixture, Pressure, SurfaceForce
 
-    def split(text, what):
+    def split(text: str, what: str) -> tuple[Region, str]:
         where, sep, value = text.rpartition(":")
         if not sep or not where:
             raise FemError(f"{what} '{text}': expected WHERE:VALUE")
         return parse_where(where), value
 
-    def numbers(text, count, what):
+    def numbers(text: str, count: int, what: str) -> tuple[float, ...]:
         try:
             values = tuple(float(v) for v in text.split(","))
         except ValueError:
@@ -183,7 +190,7 @@ def spec_from_flags(mesh, fixes, loads=(), pressures=(), material=(3000.0, 0.37)
                    tuple(fixtures), tuple(applied), element_order)
 
 
-def file_boundary_conditions(path):
+def file_boundary_conditions(path: str | Path) -> tuple[list[Fixture], list[Load]]:
     """``(fixtures, loads)`` of a 3D-TSV file's own boundary conditions, as lists (empty when it has none).
 
     Nodes are found by their coordinates, so they survive the renumbering of
