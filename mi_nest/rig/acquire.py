@@ -33,6 +33,7 @@ import warnings
 import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
@@ -45,9 +46,13 @@ from ..io.exr import write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, measurement_name
 from . import handedness
-from .calibration import Exposure, expected_exposures, fit
-from .config import RigConfig
+from .calibration import Calibration, Exposure, expected_exposures, fit
+from .clock import Clock
+from .config import KnownSpecimen, RigConfig
 from .errors import CommunicationError, RigError
+
+if TYPE_CHECKING:
+    from .genicam import GenICamBackend
 
 log = logging.getLogger(__name__)
 
@@ -74,11 +79,11 @@ class Frame:
     qwp2: float
 
     @property
-    def key(self):
+    def key(self) -> str:
         return f"{self.rotation.index:04d}.{self.qwp1:g}.{self.qwp2:g}"
 
 
-def schedule(config):
+def schedule(config: RigConfig) -> list[Frame]:
     """Every frame in capture order: QWP1 (by hand) outermost, then rotations, then QWP2."""
     rotations = config.schedule.rotations()
     frames = [(rotation, qwp1, qwp2) for qwp1 in INPUT_QWP_SETTINGS for rotation in rotations
@@ -86,7 +91,7 @@ def schedule(config):
     return [Frame(number, *frame) for number, frame in enumerate(frames)]
 
 
-def estimate_seconds(config, frames):
+def estimate_seconds(config: RigConfig, frames: Sequence[Frame]) -> float:
     """Wall time of ``frames`` on the real rig: stage and waveplate moves at their speeds (one device at a
     time, as the acquisition moves them), settling, exposure, read-backs and the operator's QWP1 turns."""
     timing = config.timing
@@ -110,7 +115,7 @@ def _duration(seconds):
     return f"{hours} h {rest // 60:02d} min {rest % 60:02d} s"
 
 
-def dry_run(config, out=print, shown=6):
+def dry_run(config: RigConfig, out: Callable[[str], None] = print, shown: int = 6) -> float:
     """Print the schedule (counts, the first frames) and its estimated duration; return the estimate (s)."""
     frames = schedule(config)
     rotations = config.schedule.rotations()
@@ -144,14 +149,14 @@ def dry_run(config, out=print, shown=6):
 class TwinBackend:
     """The twin's camera: renders what the simulated devices' true positions show (never what was commanded)."""
 
-    def __init__(self, config, free_space=False):
+    def __init__(self, config: RigConfig, free_space: bool = False) -> None:
         from . import sim, twin
         from .sim import protocol_aptsim
         camera = config.camera
         devices = config.devices
         self.config = config
 
-        def true_state():
+        def true_state() -> tuple[float, float, float]:
             qwp2 = sim.device(devices.qwp2)
             return (sim.device(devices.azimuth).position() / protocol_aptsim.COUNTS_PER_DEGREE,
                     sim.device(devices.elevation).position() / protocol_aptsim.COUNTS_PER_DEGREE,
@@ -164,25 +169,25 @@ class TwinBackend:
                                            camera.spp)
         self.camera = twin.SimulatedCamera(jones_of, true_state, camera.optics, camera.model, camera.resolution)
 
-    def set_qwp1(self, reading):
+    def set_qwp1(self, reading: float) -> None:
         """The operator's turn of the manual plate, in the twin's world."""
         self.camera.qwp1 = reading
 
-    def put_in_view(self, specimen):
+    def put_in_view(self, specimen: KnownSpecimen) -> None:
         """The operator's placing of ``specimen`` (a ``config.KnownSpecimen``), in the twin's world."""
         from . import twin
         camera = self.config.camera
         self.camera.show(twin.scene_renderer(specimen.scene, specimen.defines, camera.resolution, camera.supersample,
                                              camera.spp))
 
-    def capture(self, frame_number, clock):
+    def capture(self, frame_number: int, clock: Clock) -> dict[int, np.ndarray]:
         # the noise of a frame is seeded by its number, so a resumed run captures what an uninterrupted one would
         self.camera.exposures = frame_number
         images = self.camera.capture()
         clock.sleep(self.config.camera.exposure)
         return images
 
-    def close(self):
+    def close(self) -> None:
         """Nothing to release: the twin renders in this process."""
 
 
@@ -208,7 +213,7 @@ def scene_index(config: RigConfig) -> dict:
     return index
 
 
-def camera_backend(config, free_space=False):
+def camera_backend(config: RigConfig, free_space: bool = False) -> TwinBackend | GenICamBackend:
     """The camera of the rig file: the twin (free space: no specimen, for calibration) or a GenICam camera."""
     if config.camera.kind == "genicam":
         from .genicam import GenICamBackend
@@ -219,14 +224,14 @@ def camera_backend(config, free_space=False):
 class Rig:
     """The drivers of the two stages and the QWP2 mount, the camera, and the operator for the manual QWP1."""
 
-    def __init__(self, config, operator, free_space=False):
+    def __init__(self, config: RigConfig, operator: Callable[[str], None], free_space: bool = False) -> None:
         self.config = config
         self.operator = operator
         self.camera = camera_backend(config, free_space=free_space)
         self.azimuth = self.elevation = self.qwp2 = None
         self.reopen()
 
-    def reopen(self):
+    def reopen(self) -> None:
         """Open (again, after a lost link) every driver; the devices keep their positions."""
         from .ell14 import ELL14
         from .hdr50 import HDR50
@@ -237,35 +242,35 @@ class Rig:
         self.qwp2 = ELL14(devices.qwp2, address=devices.qwp2_address)
 
     @property
-    def clock(self):
+    def clock(self) -> Clock:
         return self.azimuth.clock
 
-    def home(self):
+    def home(self) -> None:
         self.azimuth.home()
         self.elevation.home()
         self.qwp2.home()
 
-    def set_qwp1(self, nominal, reading):
+    def set_qwp1(self, nominal: float, reading: float) -> None:
         self.operator(f"Turn QWP1 (manual mount) to {reading:.2f} deg on its scale (nominal {nominal:g} deg), "
                       "then press Enter")
         self.camera.set_qwp1(reading)
 
-    def positions(self):
+    def positions(self) -> tuple[float, float, float]:
         """The measured (azimuth, elevation, qwp2), read back from the drivers."""
         return self.azimuth.position(), self.elevation.position(), self.qwp2.position()
 
-    def close_drivers(self):
+    def close_drivers(self) -> None:
         for driver in (self.azimuth, self.elevation, self.qwp2):
             if driver is not None:
                 driver.close()
         self.azimuth = self.elevation = self.qwp2 = None
 
-    def close(self):
+    def close(self) -> None:
         self.close_drivers()
         self.camera.close()
 
 
-def terminal_operator(message):
+def terminal_operator(message: str) -> None:
     """Ask the person at the rig and wait for Enter."""
     try:
         input(f"{message}: ")
@@ -274,7 +279,7 @@ def terminal_operator(message):
                               "terminal); pass --yes to run unattended") from None
 
 
-def unattended_operator(message):
+def unattended_operator(message: str) -> None:
     """``--yes``: say what would be asked and go on (the twin turns its plate itself)."""
     print(f"[--yes] {message}", file=sys.stderr)
 
@@ -294,7 +299,7 @@ def _append_line(path, record):
         os.fsync(journal.fileno())
 
 
-def read_journal(path):
+def read_journal(path: str | Path) -> tuple[dict, dict[str, dict]]:
     """``(header, {key: record})``. A last line cut short by a crash is no commit: it is dropped from the file."""
     text = Path(path).read_text()
     lines = text.split("\n")
@@ -360,7 +365,7 @@ class AcquisitionReport:
     retries: int           # frame attempts that failed and were repeated
     rig_seconds: float     # on the rig's clock (simulated for the twin)
 
-    def describe(self):
+    def describe(self) -> str:
         return (f"{self.captured} frames captured, {self.kept} kept from an earlier run, {self.retries} "
                 f"retried after device errors; {self.rig_seconds:.0f} s on the rig's clock")
 
@@ -381,7 +386,7 @@ class _Acquisition:
         self._qwp1 = None
         self._stale = False
 
-    def open_journal(self):
+    def open_journal(self) -> dict[str, dict]:
         identity = _identity(self.config, self.optics)
         if self.journal.exists():
             header, done = read_journal(self.journal)
@@ -410,7 +415,7 @@ class _Acquisition:
                 del done[key]
             _drop_from_journal(self.journal, lost)
 
-    def run(self, progress):
+    def run(self, progress: bool) -> AcquisitionReport:
         done = self.open_journal()
         kept = len(done)
         self.rig = Rig(self.config, self.operator)
@@ -538,8 +543,10 @@ class _Acquisition:
                            metadata={**fmt.rotation_header(entry, self.index), "mi_nest.source": "captured"})
 
 
-def acquire(config, output, operator=unattended_operator, progress=True, on_frame=None, on_retry=None,
-            unverified_handedness=False):
+def acquire(config: RigConfig, output: str | Path, operator: Callable[[str], None] = unattended_operator,
+            progress: bool = True, on_frame: Callable[[dict], None] | None = None,
+            on_retry: Callable[[Frame, Exception, int], None] | None = None,
+            unverified_handedness: bool = False) -> AcquisitionReport:
     """Capture (or resume capturing) the dataset of ``config`` into ``output``; see the module docstring.
 
     A calibration without a verified handedness (``handedness.py``) is refused unless ``unverified_handedness``;
@@ -562,7 +569,8 @@ def acquire(config, output, operator=unattended_operator, progress=True, on_fram
 
 
 # --- calibration -----------------------------------------------------------------------------------
-def calibrate(config, operator=unattended_operator, check_handedness=True):
+def calibrate(config: RigConfig, operator: Callable[[str], None] = unattended_operator,
+              check_handedness: bool = True) -> Calibration:
     """The free-space sweep of :func:`~mi_nest.rig.calibration.expected_exposures` on the rig, fitted; then the
     handedness check on the rig file's known specimen (``handedness.py``), which raises
     :class:`~mi_nest.rig.handedness.HandednessError` unless the rig is as built.

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -57,13 +58,13 @@ class Calibration:
     background_fraction: float   # share of pixels the background mask kept
     handedness: object = None    # the handedness.HandednessCheck, None when not checked
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         return {"optics": self.optics.to_dict(), "light_level": self.light_level, "residual_rms": self.residual_rms,
                 "standard_errors": self.standard_errors, "exposures": self.exposures,
                 "background_fraction": self.background_fraction,
                 "handedness": NOT_CHECKED if self.handedness is None else self.handedness.to_dict()}
 
-    def describe(self):
+    def describe(self) -> str:
         lines = [f"{name} = {getattr(self.optics, name):.3f} deg (+/- {self.standard_errors[name]:.3f})"
                  for name in PARAMETERS]
         lines.append(f"light level {self.light_level:.4f}; residual rms {self.residual_rms:.2e} over "
@@ -77,7 +78,7 @@ class Calibration:
         return "\n".join(lines)
 
 
-def background_mask(exposures, threshold=0.9):
+def background_mask(exposures: Sequence[Exposure], threshold: float = 0.9) -> np.ndarray:
     """Pixels whose DoLP stays above ``threshold`` in every exposure whose free-space output is linear.
 
     An ideal polariscope gives DoLP 1 there (``dataset.masks.linear_settings``);
@@ -102,7 +103,7 @@ def _model(parameters, settings):
                                       for qwp1, qwp2, analyzer in settings])
 
 
-def fit(exposures, threshold=0.9) -> Calibration:
+def fit(exposures: Sequence[Exposure], threshold: float = 0.9) -> Calibration:
     """Least-squares optics from free-space ``exposures`` (see :func:`expected_exposures`)."""
     if len({e.qwp1 for e in exposures}) < 2 or len({e.qwp2 for e in exposures}) < 4:
         raise ValueError("calibration needs both QWP1 settings and at least 4 QWP2 angles (a sweep over a half "
@@ -159,6 +160,6 @@ def _canonical(optics):
     return Optics(**values)
 
 
-def expected_exposures():
+def expected_exposures() -> list[tuple[int, float]]:
     """The (QWP1, QWP2) settings of a calibration run, QWP1 outermost (it is turned by hand)."""
     return [(qwp1, float(qwp2)) for qwp1 in INPUT_QWP_SETTINGS for qwp2 in QWP2_SWEEP]

@@ -40,7 +40,7 @@ class Devices:
     qwp2_address: str = "0"
 
     @property
-    def simulated(self):
+    def simulated(self) -> bool:
         return all(urlsplit(getattr(self, name)).scheme == scheme for name, scheme in SIMULATED_SCHEMES.items())
 
 
@@ -104,7 +104,7 @@ class KnownSpecimen:
     scene: str = "disk_compression"
     defines: dict = field(default_factory=lambda: dict(DEFAULT_SPECIMEN_DEFINES))
 
-    def describe(self):
+    def describe(self) -> str:
         return f"{self.scene} ({', '.join(f'{k}={v}' for k, v in self.defines.items())})"
 
 
@@ -122,13 +122,13 @@ class RigConfig:
     source: Path | None = None           # the TOML file, for messages
     handedness: KnownSpecimen = KnownSpecimen()
 
-    def calibrated_optics(self):
+    def calibrated_optics(self) -> Optics | None:
         """The optics fitted by ``mi-nest calibrate`` (None when no calibration file is given)."""
         if self.calibration is None:
             return None
         return load_calibration(self.calibration)[0]
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         """Plain values for the journal and ``dataset.json`` (the rig a dataset was captured with)."""
         camera = asdict(self.camera)
         camera["kind"] = self.camera.kind
@@ -140,7 +140,7 @@ class RigConfig:
                 "handedness": asdict(self.handedness)}
 
 
-def load_calibration(path):
+def load_calibration(path: str | Path) -> tuple[Optics, dict]:
     """``(Optics, the calibration's dict)`` from a file written by ``mi-nest calibrate``."""
     path = Path(path)
     try:
@@ -211,7 +211,7 @@ def _genicam_camera(table):
     return camera
 
 
-def parse(data: dict, source=None) -> RigConfig:
+def parse(data: dict, source: str | Path | None = None) -> RigConfig:
     """A :class:`RigConfig` from the TOML document ``data`` (``source``: its path, for relative paths)."""
     _take(data, "top level", required=("devices", "camera"),
           optional=("schedule", "timing", "qwp1", "acquisition", "calibration", "handedness"))
@@ -261,7 +261,7 @@ def _known_specimen(table):
     return KnownSpecimen(str(table["scene"]), dict(defines))
 
 
-def load(path) -> RigConfig:
+def load(path: str | Path) -> RigConfig:
     """Read and check ``RIG.toml``; a shipped name (``rig_twin``) finds the file among the shipped scenes."""
     path = Path(path)
     if not path.is_file() and path.suffix == "" and not path.parent.name:

@@ -13,16 +13,22 @@ tests beyond its import guard, its configuration and the demosaicking.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..dataset.camera import demosaic
+from .clock import Clock
 from .errors import CommunicationError, RigError
+
+if TYPE_CHECKING:
+    from .config import KnownSpecimen, RigConfig
 
 INSTALL = ("the GenICam camera back-end needs harvesters (pip install 'mi_nest[genicam]') and the camera maker's "
            "GenTL producer (.cti)")
 
 
-def harvester_class():
+def harvester_class() -> type:
     try:
         from harvesters.core import Harvester
     except ImportError as error:
@@ -33,7 +39,7 @@ def harvester_class():
 class GenICamBackend:
     """Exposures of a GenICam polarisation camera as ``{analyser: image}`` normalised intensities."""
 
-    def __init__(self, config):
+    def __init__(self, config: RigConfig) -> None:
         camera = config.camera
         self.config = config
         self.white_level = float(camera.white_level)
@@ -48,13 +54,13 @@ class GenICamBackend:
         nodes.ExposureTime.value = camera.exposure * 1e6       # microseconds
         self.acquirer.start()
 
-    def set_qwp1(self, reading):
+    def set_qwp1(self, reading: float) -> None:
         """The operator turns the real plate; nothing to do here."""
 
-    def put_in_view(self, specimen):
+    def put_in_view(self, specimen: KnownSpecimen) -> None:
         """The operator places the real specimen; nothing to do here."""
 
-    def capture(self, frame_number, clock):
+    def capture(self, frame_number: int, clock: Clock) -> dict[int, np.ndarray]:
         width, height = self.config.camera.resolution
         with self.acquirer.fetch(timeout=max(5.0, 10 * self.config.camera.exposure)) as buffer:
             component = buffer.payload.components[0]
@@ -64,7 +70,7 @@ class GenICamBackend:
                            f"{width}x{height}", device="camera")
         return demosaic(raw / self.white_level)
 
-    def close(self):
+    def close(self) -> None:
         self.acquirer.stop()
         self.acquirer.destroy()
         self.harvester.reset()

@@ -27,14 +27,18 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from ..dataset.camera import demosaic, mosaic_mask
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from .config import DEFAULT_SPECIMEN_DEFINES, KnownSpecimen, load_calibration
+from .config import DEFAULT_SPECIMEN_DEFINES, GenICamCamera, KnownSpecimen, RigConfig, TwinCamera, load_calibration
 from .errors import RigError
-from .twin import pixel_means, scene_renderer
+from .twin import Optics, pixel_means, scene_renderer
+
+if TYPE_CHECKING:
+    from .calibration import Calibration, Exposure
 
 AS_BUILT = "as built"
 MIRRORED = "mirrored"
@@ -55,7 +59,7 @@ class HandednessError(RigError):
     """The rig's handedness is unknown or wrong: the capture would reconstruct a mirrored or sign-flipped stress."""
 
 
-def hypotheses(optics):
+def hypotheses(optics: Optics) -> dict[str, Optics]:
     """The calibrated ``optics`` and the three rigs that free space cannot tell from it."""
     conjugated = replace(optics, qwp1_swapped=not optics.qwp1_swapped, qwp2_swapped=not optics.qwp2_swapped)
     return {AS_BUILT: optics, MIRRORED: replace(optics, mirrored=not optics.mirrored), SIGN_FLIPPED: conjugated,
@@ -65,7 +69,8 @@ def hypotheses(optics):
 class SpecimenModel:
     """What the calibrated model predicts the camera sees of ``specimen`` with the stages at ``pose``."""
 
-    def __init__(self, specimen, camera, pose):
+    def __init__(self, specimen: KnownSpecimen, camera: TwinCamera | GenICamCamera,
+                 pose: tuple[float, float]) -> None:
         self.specimen = specimen
         self.pose = tuple(float(angle) for angle in pose)
         self.resolution = tuple(camera.resolution)
@@ -80,7 +85,7 @@ class SpecimenModel:
             raise HandednessError(f"the handedness specimen {specimen.describe()} shows no birefringence in the "
                                   "camera's view: give it a load, or a scene whose specimen is in view")
 
-    def predict(self, optics, light_level, settings):
+    def predict(self, optics: Optics, light_level: float, settings: Sequence[tuple[float, float]]) -> np.ndarray:
         """``(len(settings) * 4, pixels inside)`` intensities at ``settings`` ((QWP1, QWP2) mount readings),
         demosaicked as the camera's are."""
         predicted = []
@@ -94,7 +99,7 @@ class SpecimenModel:
             predicted.extend(images[analyzer][self.inside] for analyzer in ANALYZERS)
         return np.stack(predicted)
 
-    def require_separation(self, optics, light_level):
+    def require_separation(self, optics: Optics, light_level: float) -> None:
         """Refuse a specimen that looks the same under two hypotheses (too weakly loaded, say)."""
         predicted = {name: self.predict(h, light_level, SETTINGS) for name, h in hypotheses(optics).items()}
         names = list(predicted)
@@ -107,7 +112,7 @@ class SpecimenModel:
                 "specimen that is neither mirror-symmetric nor unchanged by a stress sign flip, e.g. the disk with "
                 f"an oblique load_direction = {DEFAULT_SPECIMEN_DEFINES['load_direction']!r}")
 
-    def judge(self, calibration, exposures):
+    def judge(self, calibration: Calibration, exposures: Sequence[Exposure]) -> HandednessCheck:
         """The :class:`HandednessCheck` of ``exposures`` (``calibration.Exposure`` at :data:`SETTINGS`)."""
         measured = np.stack([exposure.images[analyzer][self.inside]
                              for exposure in exposures for analyzer in ANALYZERS])
@@ -130,16 +135,16 @@ class HandednessCheck:
     optics: object               # the calibrated optics the hypotheses started from
 
     @property
-    def found(self):
+    def found(self) -> str:
         return min(self.residuals, key=self.residuals.get)
 
     @property
-    def margin(self):
+    def margin(self) -> float:
         """The next best hypothesis's residual over the best one's."""
         best, runner_up = sorted(self.residuals.values())[:2]
         return runner_up / max(best, np.finfo(float).tiny)
 
-    def findings(self):
+    def findings(self) -> list[tuple[str, str]]:
         """``[(what the capture matches, what to check)]``; empty when the rig is as built."""
         findings = []
         if self.found in (MIRRORED, MIRRORED_AND_SIGN_FLIPPED):
@@ -157,10 +162,10 @@ class HandednessCheck:
         return findings
 
     @property
-    def verified(self):
+    def verified(self) -> bool:
         return self.margin >= MARGIN and not self.findings()
 
-    def diagnosis(self):
+    def diagnosis(self) -> str:
         """One line: why the handedness is not verified and what to check."""
         residuals = f"residuals {self._residuals()}"
         if self.margin < MARGIN:
@@ -175,18 +180,18 @@ class HandednessCheck:
     def _residuals(self):
         return ", ".join(f"{name} {value:.4f}" for name, value in self.residuals.items())
 
-    def describe(self):
+    def describe(self) -> str:
         verdict = "verified" if self.verified else "NOT verified"
         return (f"handedness {verdict} on {self.specimen.describe()} over {self.pixels} pixels: residuals "
                 f"{self._residuals()}; best {self.found} by {self.margin:.1f}x (need {MARGIN:g}x)")
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         return {"verified": self.verified, "specimen": asdict(self.specimen),
                 "pose": {"azimuth": self.pose[0], "elevation": self.pose[1]}, "pixels": self.pixels,
                 "residuals": dict(self.residuals), "found": self.found, "margin": self.margin}
 
 
-def require_unswapped(optics):
+def require_unswapped(optics: Optics) -> None:
     """Without the check, refuse optics with a swapped waveplate: free space cannot tell which plate it is."""
     if optics.qwp1_swapped or optics.qwp2_swapped:
         raise HandednessError("the free-space sweep shows a waveplate with its fast and slow axes swapped, and only "
@@ -194,7 +199,7 @@ def require_unswapped(optics):
                               "calibrate with the specimen of known stress (without --skip-handedness)")
 
 
-def capture_record(config):
+def capture_record(config: RigConfig) -> dict:
     """The handedness record of the calibration ``config`` applies: the check's, or ``verified: false`` and why."""
     if config.calibration is None:
         return {"verified": False, "reason": "the rig file names no calibration"}
@@ -206,7 +211,7 @@ def capture_record(config):
     return record
 
 
-def admit(config, unverified_handedness=False):
+def admit(config: RigConfig, unverified_handedness: bool = False) -> dict:
     """The handedness record a capture with ``config`` goes out with; an unverified one only when told to."""
     record = capture_record(config)
     if record["verified"]:

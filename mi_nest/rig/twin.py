@@ -15,12 +15,18 @@ render once.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Callable, Sequence
 
 import numpy as np
 
 from ..dataset.camera import CameraModel
+from ..physics.backend import Array
 from ..physics.polariscope import ANALYZERS, Polariscope
 from ..physics.su2 import identity
+
+# ``jones_of(azimuth, elevation)``: the Jones quaternion ``(a, b, c, d)`` of every point sample in view and the
+# samples per pixel along each axis.
+JonesOf = Callable[[float, float], tuple[Sequence[Array], int]]
 
 
 @dataclass(frozen=True)
@@ -45,19 +51,19 @@ class Optics:
     qwp1_swapped: bool = False
     qwp2_swapped: bool = False
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("mirrored", "qwp1_swapped", "qwp2_swapped"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
-    def polariscope(self, qwp1, qwp2, analyzer, polarizer=90.0):
+    def polariscope(self, qwp1: float, qwp2: float, analyzer: float, polarizer: float = 90.0) -> Polariscope:
         """The physical polariscope when the mounts read ``qwp1``, ``qwp2`` and the analyser is ``analyzer``."""
         sense = -1.0 if self.mirrored else 1.0
         return Polariscope(sense * polarizer, sense * (qwp1 + self.qwp1_offset + 90.0 * self.qwp1_swapped),
                            sense * (qwp2 + self.qwp2_offset + 90.0 * self.qwp2_swapped),
                            sense * (analyzer + self.analyzer_offset), self.qwp1_retardance, self.qwp2_retardance)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, float | bool]:
         return asdict(self)
 
 
@@ -68,7 +74,8 @@ class SimulatedCamera:
     ``qwp1`` is the manual plate's setting, changed by the operator (or a test).
     """
 
-    def __init__(self, jones_of, rig_state, optics=Optics(), camera=CameraModel(), resolution=(64, 64)):
+    def __init__(self, jones_of: JonesOf, rig_state: Callable[[], tuple[float, float, float]], optics: Optics = Optics(),
+                 camera: CameraModel = CameraModel(), resolution: tuple[int, int] = (64, 64)) -> None:
         self.jones_of = jones_of
         self.rig_state = rig_state
         self.optics = optics
@@ -78,7 +85,7 @@ class SimulatedCamera:
         self.exposures = 0
         self._cached = None
 
-    def show(self, jones_of):
+    def show(self, jones_of: JonesOf) -> None:
         """Put another object in view (``jones_of`` as in the constructor)."""
         self.jones_of = jones_of
         self._cached = None
@@ -89,7 +96,7 @@ class SimulatedCamera:
             self._cached = (key, self.jones_of(azimuth, elevation))
         return self._cached[1]
 
-    def capture(self):
+    def capture(self) -> dict[int, np.ndarray]:
         """``{analyser: (H, W) float32}`` normalised intensities of one exposure at the rig's true state."""
         azimuth, elevation, qwp2 = self.rig_state()
         q, factor = self._jones(azimuth, elevation)
@@ -101,19 +108,20 @@ class SimulatedCamera:
         return {int(name.split(".")[1]): image for name, image in captured.items()}
 
 
-def pixel_means(samples, factor, resolution):
+def pixel_means(samples: Array, factor: int, resolution: tuple[int, int]) -> np.ndarray:
     """``(H, W)`` means of ``factor`` x ``factor`` point samples per pixel (a scalar: the same everywhere)."""
     width, height = resolution
     samples = np.broadcast_to(samples, (height * factor, width * factor))
     return samples.reshape(height, factor, width, factor).mean(axis=(1, 3))
 
 
-def free_space(azimuth, elevation):
+def free_space(azimuth: float, elevation: float) -> tuple[Sequence[Array], int]:
     """No specimen: the identity everywhere (the calibration captures)."""
     return identity(np.float64(0.0)), 1
 
 
-def scene_renderer(scene_file, defines, resolution, supersample=2, spp=1):
+def scene_renderer(scene_file: str, defines: dict, resolution: tuple[int, int], supersample: int = 2,
+                   spp: int = 1) -> JonesOf:
     """``jones_of(azimuth, elevation)`` rendering ``scene_file`` at ``supersample`` times ``resolution``.
 
     Returns the per-sample Jones quaternions ``(a, b, c, d)`` of shape
@@ -130,7 +138,7 @@ def scene_renderer(scene_file, defines, resolution, supersample=2, spp=1):
     low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
 
-    def jones_of(azimuth, elevation):
+    def jones_of(azimuth: float, elevation: float) -> tuple[Sequence[Array], int]:
         pose(scene, camera_to_world(reference, Rotation(0, azimuth, elevation, "train"), center))
         channels = render(scene).channels
         return tuple(channels[f"jones.{k}"].astype(np.float64) for k in "abcd"), supersample
