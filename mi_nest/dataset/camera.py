@@ -36,10 +36,10 @@ class CameraModel:
             raise ValueError(f"saturation must be positive, got {self.saturation}")
 
     @property
-    def is_ideal(self):
+    def is_ideal(self) -> bool:
         return self.read_noise == 0 and self.full_well is None and self.bits is None and not self.mosaic
 
-    def to_dict(self):
+    def to_dict(self) -> dict:
         return asdict(self)
 
     def capture(self, images: dict, rotation_index: int) -> dict:
@@ -62,11 +62,11 @@ class CameraModel:
         return {name: image.astype(np.float32) for name, image in zip(names, stack)}
 
 
-def analyser_of(name):
+def analyser_of(name: str) -> int:
     return int(name.split(".")[-1])
 
 
-def mosaic_mask(analyser, shape):
+def mosaic_mask(analyser: int, shape: tuple[int, int]) -> np.ndarray:
     """Where the micro-polariser ``analyser`` (degrees) sits in an image of ``shape``."""
     mask = np.zeros(shape, dtype=bool)
     for row, cells in enumerate(MOSAIC):
@@ -95,7 +95,7 @@ def _demosaic(names, stack):
     return np.stack([_interpolated(image, analyser_of(name)) for name, image in zip(names, stack)])
 
 
-def demosaic(raw):
+def demosaic(raw: np.ndarray) -> dict[int, np.ndarray]:
     """``{analyser: (H, W)}`` from a raw polarisation-camera frame ``(H, W)`` (the cell of :data:`MOSAIC`)."""
     raw = np.asarray(raw, dtype=np.float64)
     if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,16 +38,16 @@ class DatasetError(ValueError):
     """A dataset directory is missing, corrupt, incomplete or inconsistent."""
 
 
-def rotation_file(index):
+def rotation_file(index: int) -> str:
     return f"rotations/{index:04d}.exr"
 
 
-def write_index(directory, index: dict):
+def write_index(directory: str | Path, index: dict) -> None:
     with atomic_path(Path(directory) / INDEX, ".json") as tmp:
         Path(tmp).write_text(json.dumps(index, indent=1, default=plain))
 
 
-def plain(value):
+def plain(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
@@ -53,7 +55,7 @@ def plain(value):
     raise TypeError(f"cannot store {type(value).__name__} in {INDEX}")
 
 
-def read_index(directory) -> dict:
+def read_index(directory: str | Path) -> dict:
     path = Path(directory) / INDEX
     if not Path(directory).is_dir():
         raise DatasetError(f"dataset directory not found: {directory}")
@@ -89,7 +91,7 @@ POSE_KEY, SETTINGS_KEY = "mi_nest.to_world", "mi_nest.settings"
 HEADER_TOLERANCE = 1e-6
 
 
-def settings_fingerprint(index):
+def settings_fingerprint(index: dict) -> str:
     """A short hash of what every rotation file of a dataset shares: camera, sampling, polariscope, source."""
     source = index.get("source") or {}
     shared = {key: index.get(key) for key in ("resolution", "spp", "camera_model", "polariscope")}
@@ -97,13 +99,13 @@ def settings_fingerprint(index):
     return hashlib.sha256(json.dumps(shared, sort_keys=True, default=plain).encode()).hexdigest()[:16]
 
 
-def rotation_header(entry, index):
+def rotation_header(entry: dict, index: dict) -> dict[str, Any]:
     """The header attributes that name a rotation file's rotation, pose and dataset settings."""
     return {ROTATION_KEY: entry["index"], AZIMUTH_KEY: entry["azimuth"], ELEVATION_KEY: entry["elevation"],
             POSE_KEY: json.dumps(entry["to_world"], default=plain), SETTINGS_KEY: settings_fingerprint(index)}
 
 
-def header_mismatch(header, entry, index):
+def header_mismatch(header: dict[str, str], entry: dict, index: dict) -> str | None:
     """What in a rotation file's ``header`` contradicts its ``entry`` in dataset.json; None if nothing does.
 
     The rotation index is required (every mi_nest rotation file has it); pose and settings are compared
@@ -124,7 +126,7 @@ def header_mismatch(header, entry, index):
     return None
 
 
-def read_rotation(directory, entry, index):
+def read_rotation(directory: str | Path, entry: dict, index: dict) -> dict[str, np.ndarray]:
     """``{name: (H, W)}`` of one rotation file, read whole and checked against its entry in dataset.json.
 
     Raises :class:`DatasetError` when the file cannot be read (a write cut short leaves a truncated file)
@@ -143,7 +145,7 @@ def read_rotation(directory, entry, index):
     return images
 
 
-def rotation_is_whole(directory, entry, index):
+def rotation_is_whole(directory: str | Path, entry: dict, index: dict) -> bool:
     """Whether ``entry``'s rotation file is on disk, readable to its end and its own: a rerun keeps it."""
     try:
         read_rotation(directory, entry, index)
@@ -158,7 +160,7 @@ SATURATED_SHARE = 0.05
 MONO12_FULL_SCALE = 4095
 
 
-def full_scale(index):
+def full_scale(index: dict) -> float | None:
     """The normalised intensity the dataset's camera clips at; None when it does not clip (float renders)."""
     camera = index.get("camera_model") or {}
     if "white_level" in camera:
@@ -168,7 +170,7 @@ def full_scale(index):
     return None
 
 
-def check_measurements(measured, channels, where):
+def check_measurements(measured: np.ndarray, channels: Sequence[str], where: str) -> None:
     """Raise :class:`DatasetError` for NaN or inf in ``measured`` (H, W, C), or a view where all are zero."""
     finite = np.isfinite(measured)
     if not finite.all():

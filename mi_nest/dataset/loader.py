@@ -9,13 +9,18 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..physics import MEASUREMENTS
 from . import format as fmt
+
+if TYPE_CHECKING:
+    from ..physics.polariscope import Polariscope
 
 
 # Memory the decoded views may hold, by default.
@@ -35,12 +40,12 @@ class _DecodedView:
         self.mask_pixels = {}
 
     @property
-    def nbytes(self):
+    def nbytes(self) -> int:
         """Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far."""
         return (sum(a.nbytes for a in self.images.values()) + self.measured.nbytes
                 + sum(a.nbytes for a in self.mask_pixels.values()))
 
-    def pixels_inside(self, mask):
+    def pixels_inside(self, mask: str | None) -> np.ndarray:
         """Flat indices of the pixels where ``mask`` is set (None: all)."""
         if mask not in self.mask_pixels:
             self.mask_pixels[mask] = (np.arange(self.measured.shape[0] * self.measured.shape[1]) if mask is None
@@ -49,7 +54,7 @@ class _DecodedView:
 
 
 class Dataset:
-    def __init__(self, directory, allow_incomplete=False, cache_bytes=CACHE_BYTES):
+    def __init__(self, directory: str | Path, allow_incomplete: bool = False, cache_bytes: int = CACHE_BYTES):
         self.directory = Path(directory)
         self.index = fmt.read_index(self.directory)
         if not self.index["complete"] and not allow_incomplete:
@@ -71,13 +76,13 @@ class Dataset:
         return (f"Dataset({str(self.directory)!r}: {len(self)} rotations, {self.resolution[0]}x{self.resolution[1]}, "
                 f"{len(self.split('train'))} train / {len(self.split('test'))} test)")
 
-    def split(self, name):
+    def split(self, name: str) -> list[int]:
         """Positions (into ``rotations``) of the ``train`` or ``test`` rotations."""
         if name not in ("train", "test"):
             raise ValueError(f"split must be 'train' or 'test', got '{name}'")
         return [i for i, r in enumerate(self.rotations) if r["split"] == name]
 
-    def polariscopes(self):
+    def polariscopes(self) -> tuple[Polariscope, ...]:
         """The polariscope each channel was measured with, in ``channels`` order.
 
         Nominal unless the capture was calibrated: acquisition then turns both
@@ -93,10 +98,10 @@ class Dataset:
                              input_retardance=calibration["qwp1_retardance"],
                              output_retardance=calibration["qwp2_retardance"]) for scope in scopes)
 
-    def to_world(self, position):
+    def to_world(self, position: int) -> np.ndarray:
         return np.array(self.rotations[position]["to_world"])
 
-    def view(self, position, channels=None):
+    def view(self, position: int, channels: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """``{name: (H, W) float32}`` of rotation ``position``: measurements and masks."""
         names = list(self.channels) if channels is None else list(channels)
         self._require_channels(names)
@@ -143,7 +148,7 @@ class Dataset:
         while cached_bytes > self._cache_bytes and len(self._cache) > 1:
             cached_bytes -= self._cache.popitem(last=False)[1].nbytes
 
-    def check_measurements(self, mask="mask.dolp"):
+    def check_measurements(self, mask: str | None = "mask.dolp") -> None:
         """Decode every view, so that NaN, inf or all-zero measurements raise :class:`DatasetError` now,
         and warn once about views whose specimen (``mask``) is saturated."""
         level = fmt.full_scale(self.index)
@@ -161,11 +166,12 @@ class Dataset:
                           f"scale ({level:.4g}): clipped intensities bias the fit there; capture with less exposure "
                           "or light (or a higher white_level)", RuntimeWarning, stacklevel=2)
 
-    def measurements(self, position):
+    def measurements(self, position: int) -> np.ndarray:
         """``(H, W, 16)`` in the order of ``channels`` (the cached array: do not modify it)."""
         return self._decoded(position).measured
 
-    def ray_batch(self, size, rng, split="train", views_per_batch=8, mask="mask.dolp"):
+    def ray_batch(self, size: int, rng: np.random.Generator, split: str = "train", views_per_batch: int = 8,
+                  mask: str | None = "mask.dolp") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Random pixels across rotations: ``(positions, rows, columns, targets (N, 16))``.
 
         Each batch draws from ``views_per_batch`` random rotations, so a batch

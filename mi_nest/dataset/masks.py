@@ -10,6 +10,7 @@ mask recovers those enclosed by stressed material.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,20 +28,20 @@ def linear_settings() -> list[tuple[int, int]]:
             if dolp([Polariscope(POLARIZER, b1, b2, a).intensity(identity) for a in ANALYZERS])[0] > 0.999]
 
 
-def dolp(by_analyser):
+def dolp(by_analyser: Sequence[np.ndarray]) -> np.ndarray:
     """Degree of linear polarisation from the four analyser images ``(I0, I45, I90, I135)``."""
     i0, i45, i90, i135 = by_analyser
     total = 0.5 * (i0 + i45 + i90 + i135)
     return np.hypot(i0 - i90, i45 - i135) / np.maximum(total, 1e-12)
 
 
-def min_dolp(channels: dict):
+def min_dolp(channels: dict[str, np.ndarray]) -> np.ndarray:
     """The smallest DoLP over the linear-output settings, per pixel."""
     values = [dolp([channels[measurement_name(b1, b2, a)] for a in ANALYZERS]) for b1, b2 in linear_settings()]
     return np.min(values, axis=0)
 
 
-def dolp_mask(channels: dict, threshold=0.95, fill_holes=True):
+def dolp_mask(channels: dict[str, np.ndarray], threshold: float = 0.95, fill_holes: bool = True) -> np.ndarray:
     """Object mask of one rotation from its 16 measurements: DoLP below ``threshold``."""
     mask = min_dolp(channels) < threshold
     return binary_fill_holes(mask) if fill_holes else mask
@@ -52,11 +53,11 @@ class MaskAgreement:
     precision: float    # of the DoLP mask's pixels, the share inside the specimen
     recall: float       # of the specimen's pixels, the share the DoLP mask found
 
-    def describe(self):
+    def describe(self) -> str:
         return f"IoU {self.iou:.3f}, precision {self.precision:.3f}, recall {self.recall:.3f}"
 
 
-def agreement(estimated, exact):
+def agreement(estimated: np.ndarray, exact: np.ndarray) -> MaskAgreement:
     estimated, exact = np.asarray(estimated, dtype=bool), np.asarray(exact, dtype=bool)
     both = np.count_nonzero(estimated & exact)
     union = np.count_nonzero(estimated | exact)

@@ -9,6 +9,7 @@ elevation tips it towards the camera.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +39,7 @@ class RotationSchedule:
                              self.test_fraction, self.split_seed)
 
 
-def angles(count, span):
+def angles(count: int, span: float) -> list[float]:
     """``count`` angles (degrees) centred on 0 over ``span``: cell centres, so 180 degrees
     never holds both a view and its reverse."""
     if count < 1:
@@ -48,7 +49,8 @@ def angles(count, span):
     return [-0.5 * span + span * (i + 0.5) / count for i in range(count)]
 
 
-def rotation_grid(azimuths, elevations, azimuth_range, elevation_range, test_fraction=0.2, seed=0):
+def rotation_grid(azimuths: int, elevations: int, azimuth_range: float, elevation_range: float,
+                  test_fraction: float = 0.2, seed: int = 0) -> list[Rotation]:
     """Every (azimuth, elevation) pair, elevation fastest; a seeded ``test_fraction`` held out."""
     pairs = [(a, e) for a in angles(azimuths, azimuth_range) for e in angles(elevations, elevation_range)]
     if not (0.0 <= test_fraction < 1.0):
@@ -58,7 +60,7 @@ def rotation_grid(azimuths, elevations, azimuth_range, elevation_range, test_fra
     return [Rotation(i, a, e, "test" if i in test else "train") for i, (a, e) in enumerate(pairs)]
 
 
-def axis_rotation(axis, degrees):
+def axis_rotation(axis: Sequence[float] | np.ndarray, degrees: float) -> np.ndarray:
     """3x3 rotation by ``degrees`` about the unit ``axis`` (right-handed)."""
     x, y, z = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
     c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
@@ -66,11 +68,11 @@ def axis_rotation(axis, degrees):
     return np.eye(3) + s * k + (1 - c) * (k @ k)
 
 
-def specimen_rotation(rotation, right, up):
+def specimen_rotation(rotation: Rotation, right: np.ndarray, up: np.ndarray) -> np.ndarray:
     return axis_rotation(up, rotation.azimuth) @ axis_rotation(right, rotation.elevation)
 
 
-def camera_to_world(reference, rotation, center):
+def camera_to_world(reference: np.ndarray, rotation: Rotation, center: Sequence[float] | np.ndarray) -> np.ndarray:
     """The camera's 4x4 ``to_world`` when the specimen is turned by ``rotation`` about ``center``."""
     reference = np.asarray(reference, dtype=np.float64)
     right, up = reference[:3, 0], reference[:3, 1]

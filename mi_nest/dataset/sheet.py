@@ -1,10 +1,17 @@
 """Contact sheet of a dataset: one channel of every rotation, azimuth across, elevation down."""
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from .loader import Dataset
 
-def contact_sheet(dataset, channel="pol.45.0.0", gap=2):
+
+def contact_sheet(dataset: Dataset, channel: str = "pol.45.0.0", gap: int = 2
+                  ) -> tuple[np.ndarray, list[float], list[float]]:
     """The tiled ``(rows * (H + gap), columns * (W + gap))`` image (NaN in the gaps and missing tiles)."""
     azimuths = sorted({r["azimuth"] for r in dataset.rotations})
     elevations = sorted({r["elevation"] for r in dataset.rotations})
@@ -18,7 +25,7 @@ def contact_sheet(dataset, channel="pol.45.0.0", gap=2):
     return sheet, azimuths, elevations
 
 
-def write_contact_sheet(path, dataset, channel="pol.45.0.0"):
+def write_contact_sheet(path: str | Path, dataset: Dataset, channel: str = "pol.45.0.0") -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

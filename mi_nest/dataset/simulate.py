@@ -9,7 +9,9 @@ from __future__ import annotations
 import json
 import time
 import warnings
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import mitsuba as mi
@@ -56,7 +58,7 @@ class SimulationReport:
     mask_iou: float                  # mean over rotations, DoLP mask against the exact occupancy
     warnings: list = field(default_factory=list)
 
-    def describe(self):
+    def describe(self) -> str:
         per = self.rendered or 1
         return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run; render "
                 f"{self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks and "
@@ -99,7 +101,9 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
     }
 
 
-def simulate(scene_file, output, settings=SimulationSettings(), defines=(), progress=True, on_rotation=None):
+def simulate(scene_file: str | Path, output: str | Path, settings: SimulationSettings = SimulationSettings(),
+             defines: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), progress: bool = True,
+             on_rotation: Callable[[dict], None] | None = None) -> SimulationReport:
     """Render the dataset of ``scene_file`` into ``output``; resume it if it was interrupted.
 
     ``on_rotation(entry)`` is called after each rotation is safely on disk. The
@@ -188,7 +192,7 @@ def _aliasing_summary(output, rotations):
             "densest": max(float(r[DENSEST_KEY]) for r in reports)}
 
 
-def json_round_trip(value):
+def json_round_trip(value: Any) -> Any:
     return json.loads(json.dumps(value, default=fmt.plain))
 
 
