@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import astuple, dataclass, fields
-from typing import ClassVar
+from typing import ClassVar, Iterator
 
 HOST = 0x01       # the PC
 RACK = 0x11       # motherboard of a rack / benchtop unit (BSC20x): answers hardware messages
@@ -25,7 +25,7 @@ LONG_FORM = 0x80  # flag on the destination byte: `length` data bytes follow the
 MAX_DATA = 255    # the protocol document: no data packet exceeds 255 bytes
 
 
-def bay(channel):
+def bay(channel: int) -> int:
     """Address of the card that drives ``channel`` in a rack unit (0x21 for channel 1)."""
     return 0x20 + channel
 
@@ -44,7 +44,7 @@ _STATUS_NAMES = {CW_LIMIT: "CW limit", CCW_LIMIT: "CCW limit", MOVING_CW: "movin
                  HOMING: "homing", HOMED: "homed", ENABLED: "enabled"}
 
 
-def describe_status(bits):
+def describe_status(bits: int) -> str:
     """Status bits in words, for error messages."""
     names = [name for bit, name in _STATUS_NAMES.items() if bits & bit]
     return ", ".join(names) or "idle, not homed, disabled"
@@ -64,13 +64,13 @@ class Header:
     param2: int = 0
     length: int = 0    # long form only: data bytes after the header
 
-    def pack(self):
+    def pack(self) -> bytes:
         if self.long_form:
             return _LONG_HEADER.pack(self.message_id, self.length, self.dest | LONG_FORM, self.source)
         return _SHORT_HEADER.pack(self.message_id, self.param1, self.param2, self.dest, self.source)
 
 
-def parse_header(data):
+def parse_header(data: bytes | bytearray) -> Header:
     if len(data) < 6:
         raise ValueError(f"truncated APT header: {len(data)} of 6 bytes ({bytes(data).hex(' ')})")
     message_id, param1, param2, dest, source = _SHORT_HEADER.unpack_from(data)
@@ -96,11 +96,11 @@ class Message:
         cls.ID, cls.LAYOUT = message_id, layout and struct.Struct(layout)
         MESSAGES[message_id] = cls
 
-    def values(self):
+    def values(self) -> tuple:
         return astuple(self)[2:]     # the payload fields, after dest and source
 
 
-def encode(message):
+def encode(message: Message) -> bytes:
     """The bytes of ``message``; ValueError when a field does not fit its wire type."""
     values = message.values()
     try:
@@ -121,7 +121,7 @@ def encode(message):
     return frame
 
 
-def decode(frame):
+def decode(frame: bytes) -> Message:
     """The typed message in one complete frame; ValueError for unknown ids, the wrong form or length."""
     header = parse_header(frame)
     cls = MESSAGES.get(header.message_id)
@@ -146,21 +146,21 @@ def decode(frame):
 class Framer:
     """Cuts complete frames off a byte stream that arrives in arbitrary pieces."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._buffer = bytearray()
 
-    def feed(self, data):
+    def feed(self, data: bytes) -> None:
         self._buffer += data
 
     @property
-    def pending(self):
+    def pending(self) -> int:
         """Bytes held back because their frame is not complete yet."""
         return len(self._buffer)
 
-    def clear(self):
+    def clear(self) -> None:
         self._buffer.clear()
 
-    def frames(self):
+    def frames(self) -> Iterator[bytes]:
         """Yield each complete frame. A header announcing more than MAX_DATA bytes means the stream lost
         its alignment: the buffer is dropped and ValueError raised (frames before it were yielded)."""
         while len(self._buffer) >= 6:
@@ -196,7 +196,7 @@ class GetInfo(Message, message_id=0x0006, layout="<i8sHI48s12xHHH"):
     channels: int
 
     @property
-    def firmware_version(self):
+    def firmware_version(self) -> str:
         return f"{self.firmware >> 16 & 0xFF}.{self.firmware >> 8 & 0xFF}.{self.firmware & 0xFF}"
 
 

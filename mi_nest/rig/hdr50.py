@@ -74,20 +74,20 @@ class HDR50:
             raise
 
     # --- public ----------------------------------------------------------------------------------
-    def home(self):
+    def home(self) -> float:
         """Home the stage (it turns CCW to its home switch); return the measured position in degrees."""
-        def homed():
+        def homed() -> tuple[bool, str]:
             bits = self.status()
             return bool(bits & apt.HOMED), f"homing ended without the homed flag ({apt.describe_status(bits)})"
         self._perform(apt.MoveHome(self._channel, dest=self._dest), apt.MoveHomed, homed)
         return self.position()
 
-    def move_to(self, degrees):
+    def move_to(self, degrees: float) -> float:
         """Move to ``degrees`` (absolute, not wrapped: 370 is one turn past 10) and return the measured position."""
         target = round(degrees * COUNTS_PER_REVOLUTION / 360)
         measured = None
 
-        def arrived():
+        def arrived() -> tuple[bool, str]:
             nonlocal measured
             measured = self._counter()
             return (abs(measured - target) <= self.tolerance,
@@ -95,15 +95,15 @@ class HDR50:
         self._perform(apt.MoveAbsolute(self._channel, target, dest=self._dest), apt.MoveCompleted, arrived)
         return measured * 360 / COUNTS_PER_REVOLUTION
 
-    def position(self):
+    def position(self) -> float:
         """The position counter, in degrees."""
         return self._counter() * 360 / COUNTS_PER_REVOLUTION
 
-    def status(self):
+    def status(self) -> int:
         """The channel's status bits (``mi_nest.rig.apt`` names them; ``apt.describe_status`` spells them out)."""
         return self._request(apt.ReqStatusBits(self._channel, dest=self._dest), apt.GetStatusBits).status
 
-    def close(self):
+    def close(self) -> None:
         self._port.close()
 
     def __enter__(self):

@@ -12,6 +12,7 @@ the waveplate of one rig move in the same simulated time.
 from __future__ import annotations
 
 from collections import deque
+from typing import Iterator
 from urllib.parse import parse_qs, urlsplit
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException, to_bytes
@@ -22,7 +23,7 @@ CLOCK = SimulatedClock()
 _DEVICES = {}
 
 
-def device(url):
+def device(url: str) -> SimulatedDevice:
     """The simulated device behind ``url`` (``scheme://name``), created on first use by its port."""
     parts = urlsplit(url)
     key = (parts.scheme, parts.netloc)
@@ -31,7 +32,7 @@ def device(url):
     return _DEVICES[key]
 
 
-def reset():
+def reset() -> None:
     """Forget every simulated device and restart the clock (tests call this between cases)."""
     _DEVICES.clear()
     CLOCK.__init__()
@@ -45,7 +46,7 @@ class SimulatedDevice:
     may produce bytes later from :meth:`poll` (messages sent when a motion ends).
     """
 
-    def __init__(self, name, options):
+    def __init__(self, name: str, options: dict[str, str]) -> None:
         self.name = name
         self.options = options
         self.clock = CLOCK
@@ -55,30 +56,30 @@ class SimulatedDevice:
         self.disconnected = False
         self.log = []            # (time, received message) for tests
 
-    def inject(self, fault, count=1, **details):
+    def inject(self, fault: str, count: int = 1, **details: object) -> None:
         """Queue ``count`` occurrences of ``fault`` for the next messages (names are device specific)."""
         for _ in range(count):
             self.faults.append((fault, details))
 
-    def take_fault(self, *names):
+    def take_fault(self, *names: str) -> tuple[str, dict[str, object]] | None:
         """The next queued fault if it is one of ``names`` (consumed), else None."""
         if self.faults and self.faults[0][0] in names:
             return self.faults.popleft()
         return None
 
-    def receive(self, data):
+    def receive(self, data: bytes) -> None:
         self.input += data
         for message in self.frames():
             self.log.append((self.clock.now(), bytes(message)))
             self.output += self.handle(message)
 
-    def frames(self):
+    def frames(self) -> Iterator[bytes]:
         raise NotImplementedError
 
-    def handle(self, message):
+    def handle(self, message: bytes) -> bytes:
         raise NotImplementedError
 
-    def poll(self):
+    def poll(self) -> None:
         """Let simulated time act (motions finish, delayed replies appear)."""
 
 
@@ -94,7 +95,7 @@ class SimulatedPort(SerialBase):
     scheme = None
     device_class = None
 
-    def open(self):
+    def open(self) -> None:
         if self.is_open:
             raise SerialException("Port is already open.")
         parts = urlsplit(self.port)
@@ -113,10 +114,10 @@ class SimulatedPort(SerialBase):
             self._update_rts_state()
 
     @property
-    def clock(self):
+    def clock(self) -> SimulatedClock:
         return CLOCK
 
-    def close(self):
+    def close(self) -> None:
         self.is_open = False
 
     def _reconfigure_port(self):
@@ -136,18 +137,18 @@ class SimulatedPort(SerialBase):
             raise SerialException(f"{self.port}: device disconnected")
 
     @property
-    def in_waiting(self):
+    def in_waiting(self) -> int:
         self._check()
         self.device.poll()
         return len(self.device.output)
 
-    def write(self, data):
+    def write(self, data: bytes) -> int:
         self._check()
         data = to_bytes(data)
         self.device.receive(data)
         return len(data)
 
-    def read(self, size=1):
+    def read(self, size: int = 1) -> bytes:
         self._check()
         self.device.poll()
         if len(self.device.output) < size and self._timeout:
@@ -158,9 +159,9 @@ class SimulatedPort(SerialBase):
         del self.device.output[:size]
         return data
 
-    def reset_input_buffer(self):
+    def reset_input_buffer(self) -> None:
         self._check()
         self.device.output.clear()
 
-    def reset_output_buffer(self):
+    def reset_output_buffer(self) -> None:
         self._check()

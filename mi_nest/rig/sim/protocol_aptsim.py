@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Iterator
 
 from .. import apt
 from . import SimulatedDevice, SimulatedPort
@@ -71,10 +72,10 @@ class Motion:
     silent: bool = False  # its completion message is lost
 
     @property
-    def end(self):
+    def end(self) -> float:
         return self.t0 + abs(self.target - self.start) / self.counts_per_second
 
-    def position(self, now):
+    def position(self, now: float) -> float:
         stop = self.target if self.stall_at is None else self.stall_at
         travelled = self.counts_per_second * max(0.0, now - self.t0)
         return self.start + math.copysign(min(abs(stop - self.start), travelled), stop - self.start)
@@ -99,18 +100,18 @@ class SimulatedStepperController(SimulatedDevice):
         self.framer = apt.Framer()
 
     # --- state -----------------------------------------------------------------------------------
-    def position(self):
+    def position(self) -> float:
         """The counter now (a fraction of a microstep while moving)."""
         return self.motion.position(self.clock.now()) if self.motion else self.counter
 
-    def status(self):
+    def status(self) -> int:
         bits = apt.MOTOR_CONNECTED | (apt.ENABLED if self.enabled else 0) | (apt.HOMED if self.homed else 0)
         if self.motion:
             bits |= apt.MOVING_CW if self.motion.target >= self.motion.start else apt.MOVING_CCW
             bits |= apt.HOMING if self.motion.kind == "home" else 0
         return bits
 
-    def poll(self):
+    def poll(self) -> None:
         motion, now = self.motion, self.clock.now()
         if motion is None:
             return
@@ -132,7 +133,7 @@ class SimulatedStepperController(SimulatedDevice):
         self.counter, self.motion = round(self.position()), None
 
     # --- the wire --------------------------------------------------------------------------------
-    def frames(self):
+    def frames(self) -> Iterator[bytes]:
         self.framer.feed(self.input)
         self.input.clear()
         try:
@@ -152,7 +153,7 @@ class SimulatedStepperController(SimulatedDevice):
             data = data[:len(data) // 2] + data[len(data) // 2 + 1:]
         return data
 
-    def handle(self, frame):
+    def handle(self, frame: bytes) -> bytes:
         self.poll()
         header = apt.parse_header(frame)
         if self.disconnected or self._take_fault("no_reply", header.message_id):

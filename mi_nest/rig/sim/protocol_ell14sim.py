@@ -23,6 +23,7 @@ URL options: ``address`` (hex digit, default 0), ``seconds_per_turn``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Iterator
 
 from .. import elliptec
 from . import SimulatedDevice, SimulatedPort
@@ -64,20 +65,20 @@ class SimulatedELL14(SimulatedDevice):
         self._input_since = None
 
     @property
-    def moving(self):
+    def moving(self) -> bool:
         return self.motion is not None
 
-    def current_position(self):
+    def current_position(self) -> float:
         """Where the mount is now, on one revolution (a test's view of the truth)."""
         if self.motion is None:
             return self.position
         return self.motion.position_at(self.clock.now()) % self.pulses
 
-    def receive(self, data):
+    def receive(self, data: bytes) -> None:
         self.poll()     # time acts first: a move that has just ended answers before the next command
         super().receive(data)
 
-    def frames(self):
+    def frames(self) -> Iterator[bytes]:
         while self.input:
             if self.input[:1] in (b"\r", b"\n"):   # hosts that terminate commands with CR LF are tolerated
                 del self.input[:1]
@@ -99,7 +100,7 @@ class SimulatedELL14(SimulatedDevice):
         elif self._input_since is None:
             self._input_since = self.clock.now()
 
-    def handle(self, message):
+    def handle(self, message: bytes) -> bytes:
         if message[:1].decode("ascii", errors="replace").upper() != self.address:
             return b""     # addressed to another module on the bus
         if self.take_fault("no_reply"):
@@ -141,7 +142,7 @@ class SimulatedELL14(SimulatedDevice):
         self.motion = _Motion(self.clock.now(), self.position, travel, duration, ending)
         return b""
 
-    def poll(self):
+    def poll(self) -> None:
         now = self.clock.now()
         if self._input_since is not None and now - self._input_since > MESSAGE_GAP:
             ours = self.input[:1].decode("ascii", errors="replace").upper() == self.address
