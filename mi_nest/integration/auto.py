@@ -19,7 +19,7 @@ import mitsuba as mi
 import numpy as np
 
 from mi_nest import occupancy
-from mi_nest.physics import MEASUREMENTS, projection
+from mi_nest.physics import MEASUREMENTS, projection, su2
 
 if TYPE_CHECKING:
     from .methods import ChainMethod, Method
@@ -114,7 +114,7 @@ def generator_field(phase_tensor: Callable, u: np.ndarray, v: np.ndarray) -> Gen
     """NumPy ``points -> (p, q)``: the step generator per mm of a ``phase_tensor`` in the basis (u, v)."""
     coefficients = projection.projection_coefficients(tuple(map(float, u)), tuple(map(float, v)))
 
-    def generator(points):
+    def generator(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # One kernel from points to (p, q): projected where the field is sampled, two arrays come back, not six.
         shape = points.shape[:-1]
         flat = np.asarray(points, dtype=np.float32).reshape(-1, 3)
@@ -199,7 +199,7 @@ def doubled_step(method: ChainMethod, generator: GeneratorField, starts: np.ndar
     trusted once it also fell about 16-fold from the step before.
     Returns ``(step, estimated error)``.
     """
-    def intensities(q):
+    def intensities(q: su2.Quaternion) -> np.ndarray:
         return np.stack([scope.intensity(q) for scope in MEASUREMENTS.values()])
 
     # Chords of round lengths put step ends on interfaces at round depths at every halving, where

@@ -12,7 +12,7 @@ integrator's ``method`` property to an object; nothing else reads the name.
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -109,11 +109,11 @@ class Method:
     def trace_start(self) -> tuple:
         return self.start(), (mi.Float(0), mi.Float(0))
 
-    def replay_start(self, state: su2.Quaternion):
+    def replay_start(self, state: su2.Quaternion) -> Any:
         """The adjoint pass's carry for a ray whose traced state is ``state``."""
         raise NotImplementedError
 
-    def replay(self, carry, state_grad: su2.Quaternion, segment: Segment, setup: SceneSetup):
+    def replay(self, carry: Any, state_grad: su2.Quaternion, segment: Segment, setup: SceneSetup) -> Any:
         """Back-propagate ``state_grad`` (the adjoint of the ray's state) into one segment's field lookups."""
         raise NotImplementedError
 

@@ -7,7 +7,7 @@ scene is set up, never kept from an earlier import.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import drjit as dr
 import mitsuba as mi
@@ -18,6 +18,9 @@ from mi_nest.physics import Polariscope, projection
 from mi_nest.plugins import polariscope, polariscope_light, stress
 
 from .guards import SceneSetupError, require_closed
+
+if TYPE_CHECKING:
+    from .methods import Segment
 
 
 class SceneSetup:
@@ -93,7 +96,7 @@ class SceneSetup:
             return self.fields[0].eval(p)
         return dr.switch(medium - 1, self.phase_tensors, p)
 
-    def transverse(self, p: mi.Point3f, segment) -> tuple[mi.Float, mi.Float]:
+    def transverse(self, p: mi.Point3f, segment: Segment) -> tuple[mi.Float, mi.Float]:
         """``(s_uu - s_vv, 2 s_uv)`` at ``p`` on a walk's ``segment``, scaled to phase per mm."""
         return projection.apply_coefficients(segment.coefficients, self.phase_tensor(segment.medium, p))
 
