@@ -39,7 +39,9 @@ def scene_path(name: str) -> Path:
 def scene_file(path: str | Path) -> Path:
     """The scene XML a path or shipped scene name stands for."""
     path = Path(path)
-    if not path.exists() and len(path.parts) == 1:
+    # A bare name is a shipped scene unless a file of that name is here (a folder named like it, such as
+    # the output directory of `mi-nest simulate kitten -o kitten`, is not a scene).
+    if not path.is_file() and len(path.parts) == 1:
         path = scene_path(path.name)
     if not path.is_file():
         raise SceneError(f"scene file not found: {path}")

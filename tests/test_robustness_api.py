@@ -9,6 +9,7 @@ import mi_nest
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.reconstruct import FieldConfig, OptimizeConfig, optimize
+from mi_nest.scene import scene_file
 
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=2, batch_size=64, views_per_batch=3, resolution=6, evaluate_views=1, pixel_samples=1)
@@ -96,3 +97,13 @@ def test_command_line_users_are_told_about_restart_not_resume_false(tiny_dataset
         optimize(mi_nest.load_scene("disk_compression", res=8, load=20), tiny_dataset, output=output,
                  progress=False, **{**FAST, "iterations": 3})
     assert main(arguments + ["--iterations", "3", "--restart"]) == 0
+
+
+def test_a_shipped_scene_name_is_found_beside_a_folder_of_that_name(tmp_path, monkeypatch):
+    """`mi-nest simulate kitten -o kitten` (in a folder where `kitten/` exists, or is made by the run itself)
+    said "scene file not found: kitten": a directory is no scene file."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "disk_compression").mkdir()
+    assert scene_file("disk_compression") == mi_nest.scene_path("disk_compression").resolve()
+    (tmp_path / "mine.xml").write_text("<scene version='3.0.0'/>")
+    assert scene_file("mine.xml") == (tmp_path / "mine.xml").resolve()
