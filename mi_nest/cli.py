@@ -6,6 +6,7 @@ import argparse
 import signal
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 from . import interrupts
@@ -146,6 +147,8 @@ def _parser():
                                                   "rerun the same command to resume an interrupted capture")
     acquire.add_argument("rig", help="rig file (TOML), or a shipped one by name (rig_twin)")
     acquire.add_argument("-o", "--output", required=True, help="dataset directory (journal, frames, rotations)")
+    acquire.add_argument("--calibration", help="calibration JSON from mi-nest calibrate (default: the rig file's "
+                         "'calibration')")
     acquire.add_argument("--dry-run", action="store_true", help="print the schedule and its estimated duration")
     acquire.add_argument("--yes", action="store_true", help="do not wait for the operator at the manual QWP1")
     acquire.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -316,6 +319,9 @@ def _acquire(args):
     from .rig import acquire as acquisition
     from .rig.config import load
     config = load(args.rig)
+    if args.calibration is not None:
+        config = replace(config, calibration=Path(args.calibration))
+        config.calibrated_optics()      # a missing or foreign file is refused before anything moves
     if args.dry_run:
         acquisition.dry_run(config)
         return

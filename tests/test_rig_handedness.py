@@ -255,3 +255,18 @@ def test_a_rig_file_turns_the_known_specimen(tmp_path):
     assert load(rig_file(tmp_path, handedness={"defines": {"load": 300}})).handedness.defines == {
         "load": 300, "contact_width": 4.0, "load_direction": "-0.5, 0.8660254, 0"}
     assert load(rig_file(tmp_path, handedness={"scene": "twisted_block"})).handedness.defines == {}
+
+
+def test_the_readme_calibrates_the_twin_and_acquires_with_that_calibration(tmp_path, monkeypatch, capsys):
+    """The README's two lines: the shipped rig file names no calibration, so acquire takes the one just written."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["calibrate", "rig_twin", "-o", "calibration.json", "--yes"]) == 0
+    assert main(["acquire", "rig_twin", "-o", "capture", "--yes", "--quiet"]) == 2
+    assert "the rig file names no calibration" in capsys.readouterr().err
+    assert main(["acquire", "rig_twin", "--calibration", "nowhere.json", "-o", "capture", "--yes", "--quiet"]) == 2
+    assert "calibration file not found: nowhere.json" in capsys.readouterr().err
+    assert not (tmp_path / "capture").exists()
+    assert main(["acquire", "rig_twin", "--calibration", "calibration.json", "-o", "capture", "--yes",
+                 "--quiet"]) == 0
+    index = json.loads((tmp_path / "capture" / "dataset.json").read_text())
+    assert index["complete"] and index["handedness"]["verified"] is True
