@@ -29,6 +29,8 @@ RECONSTRUCT_OPTIONS = (("iterations", int, "600"), ("batch-size", int, "4096 ray
                                                   "smoothness penalty grows linearly (Charbonnier)"),
                        ("average-last", float, "0; share of the run at its end whose iterates are "
                                                "averaged into the result"),
+                       ("relative-to", float, "none; field RMS (stress scales) above which the smoothness falls "
+                                              "as its square and the edge grows with it"),
                        ("warm-start", float, "0: no Two-step warm start"))
 
 

@@ -149,6 +149,42 @@ def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_ove
             Regulariser(smoothness=1e-2, final_smoothness=final)
 
 
+def test_a_relative_regulariser_falls_with_the_square_of_the_field_scale_above_its_reference():
+    """Above ``relative_to`` the weight falls as the RMS squared and the edge grows with it; below, both hold."""
+    regulariser = Regulariser(smoothness=1e-2, smoothness_edge=5.0, relative_to=0.5)
+    for rms in (None, 0.1, 0.5):
+        assert regulariser.smoothness_at(0.0, rms) == 1e-2 and regulariser.edge_at(rms) == 5.0
+    assert regulariser.smoothness_at(0.0, 1.5) == pytest.approx(1e-2 / 9)
+    assert regulariser.edge_at(1.5) == pytest.approx(15.0)
+    # as tuned (no reference) the field's scale changes nothing
+    assert Regulariser(smoothness=1e-2, smoothness_edge=5.0).smoothness_at(0.0, 1.5) == 1e-2
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="relative_to"):
+            Regulariser(smoothness=1e-2, relative_to=bad)
+
+
+def test_a_field_s_rms_and_an_edge_that_follows_it_reuse_the_kernels():
+    regulariser = Regulariser(smoothness=1e-2, smoothness_edge=5.0, relative_to=1e-3)
+    field = make_field(FieldConfig(kind="grid", resolution=6), (0, 0, 0), (1, 1, 1), 1.0)
+    field.assign({"grid": mi.TensorXf(np.full((6, 6, 6, 5), 2.0, dtype=np.float32))})
+    assert field.rms() == pytest.approx(2.0)
+    optimizer = dr.opt.Adam(lr=1e-2, params=field.parameters())
+
+    def kernels_of_steps(steps):
+        dr.kernel_history()
+        for _ in range(steps):
+            field.assign(optimizer)
+            rms = field.rms()
+            dr.backward(field.smoothness_penalty(regulariser.smoothness_at(0.0, rms), regulariser.edge_at(rms)))
+            optimizer.step()
+        dr.eval(optimizer["grid"])
+        return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        first = kernels_of_steps(2)
+        assert kernels_of_steps(3) <= first
+
+
 def test_a_decaying_smoothness_reuses_its_kernels():
     regulariser = Regulariser(smoothness=1e-2, final_smoothness=1e-4)
     field = make_field(FieldConfig(kind="grid", resolution=6), (0, 0, 0), (1, 1, 1), 1.0)

@@ -115,8 +115,14 @@ class Regulariser:
     final_smoothness: float | None = None  # the weight at the end, decayed over the finest stage (None: constant)
     smoothness_edge: float | None = None   # finest stage: gradient above which the penalty grows linearly
     average_last: float = 0.0        # share of the run at its end whose iterates are averaged into the result
+    # A grid's RMS (stress scales) up to which the weights hold as given; above it the smoothness falls as the
+    # RMS squared and the edge grows with it, so the penalty keeps its share of the loss as the load grows
+    # (None: the weights hold at any scale).
+    relative_to: float | None = None
 
     def __post_init__(self):
+        if self.relative_to is not None and not (math.isfinite(self.relative_to) and self.relative_to > 0):
+            raise ValueError(f"relative_to is a field RMS in stress scales and must be positive, got {self.relative_to}")
         if not self.smoothness >= 0:
             raise ValueError(f"smoothness must be non-negative, got {self.smoothness}")
         if self.final_smoothness is not None and not 0 < self.final_smoothness <= self.smoothness:
@@ -130,11 +136,21 @@ class Regulariser:
     def acts_on_gradients(self) -> bool:
         return bool(self.smoothness) or self.smoothness_edge is not None
 
-    def smoothness_at(self, decayed: float) -> float:
-        """The smoothness weight once ``decayed`` (0 to 1) of its geometric decay to ``final_smoothness`` is done."""
-        if self.final_smoothness is None:
-            return self.smoothness
-        return self.smoothness * (self.final_smoothness / self.smoothness) ** decayed
+    def smoothness_at(self, decayed: float, field_rms: float | None = None) -> float:
+        """The smoothness weight once ``decayed`` (0 to 1) of its geometric decay to ``final_smoothness`` is done,
+        for a field of RMS ``field_rms`` (used with ``relative_to``)."""
+        weight = self.smoothness if self.final_smoothness is None else \
+            self.smoothness * (self.final_smoothness / self.smoothness) ** decayed
+        return weight / self._growth(field_rms) ** 2
+
+    def edge_at(self, field_rms: float | None = None) -> float | None:
+        """The Charbonnier edge for a field of RMS ``field_rms`` (used with ``relative_to``)."""
+        return None if self.smoothness_edge is None else self.smoothness_edge * self._growth(field_rms)
+
+    def _growth(self, field_rms):
+        if self.relative_to is None or field_rms is None:
+            return 1.0
+        return max(1.0, field_rms / self.relative_to)
 
 
 # A grid regulariser that met the issue's targets on the disk and the kitten alike (docs/reconstruction.md).

@@ -146,6 +146,10 @@ class DeviatoricGrid(TrainableField):
     def assign(self, values: dict) -> None:
         self.texture.set_tensor(values["grid"])
 
+    def rms(self) -> float:
+        """Root mean square of the stored components over the nodes (stress scales)."""
+        return float(dr.sqrt(dr.mean(dr.square(self.texture.tensor().array)))[0])
+
     def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
         if weight == 0:
             return None
@@ -165,7 +169,8 @@ class DeviatoricGrid(TrainableField):
             # concentrations keep their flanks while gentle ripples (poorly observed directions) are smoothed.
             # 2 edge^2 (sqrt(1 + (d / edge)^2) - 1), written without the cancellation of small gradients.
             squared = dr.square(difference)
-            penalty = 2.0 * squared / (dr.sqrt(1.0 + squared / edge ** 2) + 1.0)
+            # Opaque, like the weight: an edge that follows the field's scale would rebuild the kernel.
+            penalty = 2.0 * squared / (dr.sqrt(1.0 + squared / dr.opaque(mi.Float, edge ** 2)) + 1.0)
         # Opaque: a literal weight that decays would rebuild the gradient kernel every iteration.
         return dr.opaque(mi.Float, weight) * dr.mean(penalty)
 

@@ -42,6 +42,8 @@ EXPLODING_FACTOR = 1e4
 RUNAWAY_ORDERS_PER_PIXEL = 20
 # Points per axis of the lattice inside the specimen where the field's magnitude is checked.
 MAGNITUDE_POINTS = 16
+# Iterations between read-backs of the field's RMS for a regulariser relative to it.
+FIELD_RMS_EVERY = 50
 
 
 class DivergenceError(RuntimeError):
@@ -64,6 +66,7 @@ class Run:
         self.pixel_samples = int(config.optimiser.pixel_samples or min(4, int(dataset.index.get("spp", 1))))
         self.rng = np.random.default_rng(config.optimiser.seed)
         self.iteration = 0
+        self._rms = None
         self.history = []
         self.seconds = 0.0
         self.gradient_norms = []
@@ -134,6 +137,12 @@ class Run:
             self.iterate_sums[name] = value if name not in self.iterate_sums else self.iterate_sums[name] + value
         dr.eval(self.iterate_sums)
         self.iterates_averaged += 1
+
+    def _field_rms(self) -> float:
+        # Read back every FIELD_RMS_EVERY iterations (a reduction and a sync): the scale moves slowly.
+        if self.iteration % FIELD_RMS_EVERY == 0 or self._rms is None:
+            self._rms = self.field.rms()
+        return self._rms
 
     def smoothness_decayed(self) -> float:
         """How far the smoothness weight has decayed (0 to 1): over the finest stage, once the coarse stages
@@ -234,8 +243,9 @@ class Run:
             total = loss
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
-            penalty = self.field.smoothness_penalty(regulariser.smoothness_at(self.smoothness_decayed()),
-                                                    regulariser.smoothness_edge if self.in_finest_stage() else None)
+            field_rms = self._field_rms() if regulariser.relative_to is not None else None
+            penalty = self.field.smoothness_penalty(regulariser.smoothness_at(self.smoothness_decayed(), field_rms),
+                                                    regulariser.edge_at(field_rms) if self.in_finest_stage() else None)
             if penalty is not None:
                 total = total + penalty
             dr.backward(total)
