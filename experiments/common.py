@@ -25,19 +25,24 @@ def arguments(doc, name, scene="disk_compression", defines=("load=300", "contact
     """The options every experiment shares; ``name`` names its output folder, CSV and PNG."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--scene", default=scene)
-    parser.add_argument("-D", dest="defines", action="append", default=list(defines), metavar="NAME=VALUE")
+    parser.add_argument("-D", dest="defines", action="append", metavar="NAME=VALUE",
+                        help=f"scene defines; they replace the defaults ({' '.join(defines) or 'none'}, which are "
+                             f"for {scene} only)")
     parser.add_argument("--rotations", type=int, default=rotations)
     parser.add_argument("--res", type=int, default=res)
     parser.add_argument("--minutes", type=float, default=minutes, help="of optimisation per run")
     parser.add_argument("--resolution", type=int, default=resolution, help="grid nodes along the longest axis")
     parser.add_argument("--output", type=Path, default=Path("experiments/out") / name)
-    parser.set_defaults(name=name)
+    parser.set_defaults(name=name, default_scene=scene, default_defines=list(defines))
     return parser
 
 
 def parse(parser):
     """``(args, defines)`` with the ``-D`` defines as numbers."""
     args = parser.parse_args()
+    if args.defines is None:
+        # The defaults are the default scene's: another scene may not have those parameters.
+        args.defines = args.default_defines if args.scene == args.default_scene else []
     return args, {k: float(v) for k, v in (d.split("=", 1) for d in args.defines)}
 
 
