@@ -30,17 +30,16 @@ def _check_image(scene, image, names, passes):
     """
     name = scene.id() or "the scene"
     length = image[..., names.index("path.length")]
+    order = np.abs(image[..., names.index("fringe.order")]) / passes
     bad = ~np.isfinite(image)
     if bad.any():
-        order = image[..., names.index("fringe.order")]
         finite = np.isfinite(order)
-        extent = (f"fringe orders reach {order[finite].max() / passes:.3g} (real parts show a few hundred at most)"
+        extent = (f"fringe orders reach {order[finite].max():.3g} (real parts show a few hundred at most)"
                   if finite.any() else "the fringe order overflows")
         channels = [n for n, b in zip(names, bad.any(axis=(0, 1))) if b]
         raise SceneError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf (in "
                          f"{', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}): the stress field is NaN "
                          f"there, or so large that {extent}; check its magnitude and units (MPa)")
-    order = np.abs(image[..., names.index("fringe.order")]) / passes
     if order.max() > MAX_FRINGE_ORDER:
         raise SceneError(f"{name}: fringe orders reach {order.max():.3g} in {int((order > MAX_FRINGE_ORDER).sum())} of "
                          f"{length.size} pixels; beyond {MAX_FRINGE_ORDER:.0e} the float32 phases lose their meaning "

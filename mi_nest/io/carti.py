@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .cells import fill_from_nearest, nodal_average
-from .tsv import TsvFileError, TsvModel
+from .tsv import TsvFileError, TsvModel, element_stress_line, stress_data_type_line
 
 
 @dataclass(frozen=True)
@@ -106,11 +106,7 @@ def read_carti_file(path: str | Path, one_based: bool | None = None) -> Cartesia
                            f"'CARTESIAN_GRID' among its first {_GRID_LINE_WITHIN}")
     element_stress, body = False, grid_line + 1
     if body < len(lines) and lines[body].lower().startswith("stress data type"):
-        kind = lines[body].partition(":")[2].strip().upper()
-        if kind not in ("NODE", "ELEMENT"):
-            raise TsvFileError(f"{path}:{body + 1}: unknown stress data type {kind!r}; 3D-TSV writes NODE "
-                               "(one stress per grid node) or ELEMENT (one per solid voxel)")
-        element_stress, body = kind == "ELEMENT", body + 1
+        element_stress, body = element_stress_line(path, body + 1, lines[body], "grid node", "solid voxel"), body + 1
     reader = _Tokens(path, " ".join(lines[body:]).split())
     cells = tuple(int(v) for v in reader.keyword_numbers(3, int))
     if min(cells) < 1:
@@ -208,7 +204,7 @@ def write_carti_file(path: str | Path, cells: Sequence[int], lower: Sequence[flo
     stress = np.asarray(stress_at(points))
     with open(path, "w", encoding="ascii") as out:
         if today:
-            out.write(f"DATASET CARTESIAN_GRID\nStress Data Type: {'ELEMENT' if element_stress else 'NODE'}\n")
+            out.write(f"DATASET CARTESIAN_GRID\n{stress_data_type_line(element_stress)}")
         else:
             out.write("# vtk DataFile Version 3.0\nmi_nest\nASCII\nDATASET CARTESIAN_GRID\n")
         out.write("Resolution: {} {} {}\n".format(*cells))

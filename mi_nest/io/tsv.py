@@ -37,6 +37,21 @@ class TsvFileError(ValueError):
     """A 3D-TSV file is missing, truncated or malformed."""
 
 
+def element_stress_line(path: str | Path, row: int, line: str, node: str, element: str) -> bool:
+    """Whether a ``Stress Data Type: NODE|ELEMENT`` header line gives one stress per ``element`` (else per
+    ``node``); any other type is refused naming the line."""
+    kind = line.partition(":")[2].strip().upper()
+    if kind not in ("NODE", "ELEMENT"):
+        raise TsvFileError(f"{path}:{row}: unknown stress data type {kind!r}; 3D-TSV writes NODE "
+                           f"(one stress per {node}) or ELEMENT (one per {element})")
+    return kind == "ELEMENT"
+
+
+def stress_data_type_line(element_stress: bool) -> str:
+    """The header line 3D-TSV writes for nodal or element-wise stress."""
+    return f"Stress Data Type: {'ELEMENT' if element_stress else 'NODE'}\n"
+
+
 @dataclass(frozen=True)
 class BoundaryConditions:
     """The loads and supports of the FEM run behind a 3D-TSV file.
@@ -110,11 +125,7 @@ class _Header:
             self._once(path, row, "Version")
         elif line.lower().startswith("stress data type"):
             self._once(path, row, "Stress Data Type")
-            kind = line.partition(":")[2].strip().upper()
-            if kind not in ("NODE", "ELEMENT"):
-                raise TsvFileError(f"{path}:{row}: unknown stress data type {kind!r}; 3D-TSV writes NODE "
-                                   "(one stress per vertex) or ELEMENT (one per element)")
-            self.element_stress = kind == "ELEMENT"
+            self.element_stress = element_stress_line(path, row, line, "vertex", "element")
         elif key in ("solid", "plane"):
             self._once(path, row, "Solid")
             if key == "plane":
@@ -261,7 +272,7 @@ def write_stress_file(path: str | Path, vertices: np.ndarray, elements: np.ndarr
     fixed = np.zeros(0, np.int64) if fixed_nodes is None else np.asarray(fixed_nodes, dtype=np.int64)
     with open(path, "w", encoding="ascii") as out:
         if today:
-            out.write(f"Version 2.0\nStress Data Type: {'ELEMENT' if element_stress else 'NODE'}\n"
+            out.write(f"Version 2.0\n{stress_data_type_line(element_stress)}"
                       f"Solid {'Hex' if elements.shape[1] == 8 else 'Tet'} 1\n")
         out.write(f"Vertices: {len(vertices)}\n")
         np.savetxt(out, np.asarray(vertices), fmt="%.9e")
