@@ -134,14 +134,15 @@ def read_rotation(directory: str | Path, entry: dict, index: dict) -> dict[str, 
     """
     path = Path(directory) / entry["file"]
     try:
-        # The header first: a file of another rotation is refused before its pixels are decoded.
-        problem = header_mismatch(read_metadata(path), entry, index)
-        if problem is not None:
-            raise DatasetError(f"{path}: {problem}; the file belongs to another rotation or dataset (swapped or "
-                               "copied?): put the right file back, or simulate or acquire the dataset again")
-        return read_channels(path)
+        images = read_channels(path)
+        header = read_metadata(path)
     except ExrFileError as error:
         raise DatasetError(f"rotation {entry['index']}: {error}") from error
+    problem = header_mismatch(header, entry, index)
+    if problem is not None:
+        raise DatasetError(f"{path}: {problem}; the file belongs to another rotation or dataset (swapped or "
+                           "copied?): put the right file back, or simulate or acquire the dataset again")
+    return images
 
 
 def rotation_is_whole(directory: str | Path, entry: dict, index: dict) -> bool:
