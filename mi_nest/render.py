@@ -113,14 +113,14 @@ def render(scene: mi.Scene, spp: int | None = None, seed: int = 0, passes: int |
             total = image if total is None else total + image
             bar.update()
     # Before the integrator's warnings are repeated: an image refused for NaN pixels needs no warning about them.
-    _check_image(scene, total, integrator.channel_names(film), passes)
+    names = integrator.channel_names(film)
+    _check_image(scene, total, names, passes)
     last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
     for w in last_of_kind.values():
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     seconds = time.perf_counter() - start
     if passes > 1:
         total /= passes
-    names = integrator.channel_names(film)
     if len(names) != total.shape[-1]:
         raise SceneError(f"film produced {total.shape[-1]} channels but names {names}")
     # Views into the (H, W, C) image: a transposing copy costs more than the render.

@@ -317,16 +317,15 @@ def solve(mesh: MeshTet, material: Material | Mapping, loads: Sequence[Load | Ma
     if not np.all(np.isfinite(u)):
         raise FemError("the solution is not finite: the stiffness matrix is singular (insufficient fixtures "
                        "or a disconnected mesh)")
-    if method == "amg" and residual > 10 * solver.tolerance:
-        raise FemError(f"AMG-preconditioned CG did not converge: relative residual {residual:.2e} after "
-                       f"{iterations} iterations (tolerance {solver.tolerance:g}); a mesh in several "
-                       f"pieces (each needs its own fixtures) does this, otherwise raise max_iterations or "
-                       f"use method = 'direct' for small models")
-    if method == "direct" and residual > 10 * solver.tolerance:
-        raise FemError(f"the sparse LU solution does not solve the system: relative residual {residual:.2e} "
-                       f"(tolerance {solver.tolerance:g}): the stiffness matrix is singular, so the model moves "
-                       f"without straining somewhere; parts of the mesh joined only at a node or an edge turn "
-                       f"about it, so join them through faces, or fix each part")
+    if residual > 10 * solver.tolerance:
+        # Bodies that nothing holds were refused before the solve (check_rigid_modes, per body).
+        raise FemError((f"AMG-preconditioned CG did not converge: relative residual {residual:.2e} after "
+                        f"{iterations} iterations (tolerance {solver.tolerance:g}): raise max_iterations or use "
+                        "method = 'direct' for small models") if method == "amg" else
+                       (f"the sparse LU solution does not solve the system: relative residual {residual:.2e} "
+                        f"(tolerance {solver.tolerance:g}): the stiffness matrix is singular, so the model moves "
+                        "without straining somewhere; parts of the mesh joined only at a node or an edge turn "
+                        "about it, so join them through faces, or fix each part"))
 
     clock = time.perf_counter()
     reaction = K @ u - f

@@ -61,10 +61,9 @@ def choose(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor, tolerance: flo
     """``(method, step_size, reason)``: ``linear`` or ``magnus4``, from the fields sampled along the light."""
     to_world = sensor.world_transform()
     k = -np.array(dr.normalize(to_world @ mi.Vector3f(0, 0, 1))).ravel()    # light travels towards the camera
-    u = np.array(setup.right).ravel()
-    u = u - (u @ k) * k
-    u /= np.linalg.norm(u)
-    v = np.cross(k, u)
+    # The frame the walk marches in (SceneSetup.projection_coefficients), here on NumPy.
+    right = tuple(np.array(setup.right).ravel())
+    u, v = (np.array(x, dtype=np.float64) for x in projection.transverse_basis(tuple(k), right))
     rates, lines = [], []
     for shape, medium in setup.specimens:
         box = shape.bbox()

@@ -20,9 +20,9 @@ from pathlib import Path
 
 LOCK_FILE = ".mi_nest.lock"
 
-# Directories this process holds, with how many nested blocks hold each: a run may lock a directory that a
-# function it calls locks again (flock would refuse the second open file description of one process).
-_held = {}
+# Directories this process holds: a run may lock a directory that a function it calls locks again (flock
+# would refuse the second open file description of one process); the inner block then holds nothing more.
+_held = set()
 
 
 class DirectoryInUseError(OSError):
@@ -40,22 +40,18 @@ def locked_directory(directory: str | Path) -> Iterator[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     key = str(directory.resolve())
     if key in _held:
-        _held[key][1] += 1
-        try:
-            yield directory
-        finally:
-            _held[key][1] -= 1
+        yield directory
         return
     path = directory / LOCK_FILE
     fd = _lock(path, directory)
-    _held[key] = [fd, 1]
+    _held.add(key)
     try:
         os.ftruncate(fd, 0)
         os.write(fd, (f"PID {os.getpid()} on {socket.gethostname()} since {time.strftime('%Y-%m-%d %H:%M:%S')}: "
                       f"{' '.join(sys.argv)}\n").encode())
         yield directory
     finally:
-        del _held[key]
+        _held.discard(key)
         # Unlinked while still locked: a writer that opened the old file sees it is gone and retries.
         path.unlink(missing_ok=True)
         os.close(fd)

@@ -243,7 +243,10 @@ class Run:
             total = loss
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
-            field_rms = self._field_rms() if regulariser.relative_to is not None else None
+            # The scale is read only where it changes a weight: a grid's smoothness, relative to the field.
+            relative = regulariser.relative_to is not None and regulariser.acts_on_gradients() \
+                and self.field.kind == "grid"
+            field_rms = self._field_rms() if relative else None
             penalty = self.field.smoothness_penalty(regulariser.smoothness_at(self.smoothness_decayed(), field_rms),
                                                     regulariser.edge_at(field_rms) if self.in_finest_stage() else None)
             if penalty is not None:

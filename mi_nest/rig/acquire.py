@@ -327,13 +327,11 @@ def read_journal(path: str | Path) -> tuple[dict, dict[str, dict]]:
 
 
 def _write_frame(path, images, record):
-    """The frame's images and read-back positions, on disk (synced) before its journal line commits it."""
+    """The frame's images and read-back positions, on disk (``atomic_path`` syncs them) before its journal line
+    commits it."""
     with atomic_path(path, ".npz") as tmp:
-        with open(tmp, "wb") as handle:
-            np.savez(handle, **{f"analyzer_{a}": np.asarray(images[a], dtype=np.float32) for a in ANALYZERS},
-                     **{name: np.float64(record[name]) for name in ("azimuth", "elevation", "qwp2_measured")})
-            handle.flush()
-            os.fsync(handle.fileno())
+        np.savez(tmp, **{f"analyzer_{a}": np.asarray(images[a], dtype=np.float32) for a in ANALYZERS},
+                 **{name: np.float64(record[name]) for name in ("azimuth", "elevation", "qwp2_measured")})
 
 
 def _read_frame(path):
