@@ -472,3 +472,10 @@ def test_results_and_checkpoints_written_before_the_config_groups_still_load(tin
     resumed = optimize(_scene(), tiny_dataset, output=output, iterations=20, kind="grid", resolution=6,
                        smoothness=1e-4, checkpoint_every=10, progress=False)
     assert len(resumed.history) == 20
+
+
+def test_a_relative_reference_without_a_grid_smoothness_reads_no_scale(tiny_dataset):
+    """`relative_to` on an MLP (which has no smoothness and no rms) crashed the first iteration."""
+    result = optimize(_scene(), tiny_dataset, iterations=2, kind="mlp", relative_to=1.0, batch_size=64,
+                      progress=False)
+    assert len(result.history) == 2 and result.config.regulariser.relative_to == 1.0
