@@ -98,12 +98,13 @@ def render(scene: mi.Scene, spp: int | None = None, seed: int = 0, passes: int |
     spp, passes = render_plan(scene, spp, passes)
     seed = whole_number("seed", seed, minimum=0)
     from tqdm import tqdm
-    bar = tqdm(total=passes, desc="render", unit="pass", leave=False, disable=not progress)
     start = time.perf_counter()
     total = None
-    # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's.
+    # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's. The bar
+    # opens last, so a Ctrl-C while the scene is set up leaves no half-drawn bar before its one line.
     with warnings.catch_warnings(record=True) as caught, integrator.deciding_once(scene, sensor, field), \
-            interrupts.deferred(), bar:
+            interrupts.deferred(), \
+            tqdm(total=passes, desc="render", unit="pass", leave=False, disable=not progress) as bar:
         warnings.simplefilter("always")
         for index in range(passes):
             interrupts.check()
