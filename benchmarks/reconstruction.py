@@ -39,8 +39,11 @@ warnings.simplefilter("ignore")
 settings = SimulationSettings(azimuths=args["rotations"], elevations=args["rotations"], res=args["res"], spp=1)
 simulate(args["scene"], args["data"], settings, defines=args["defines"], progress=False)
 scene = mi_nest.load_scene(args["scene"], res=args["res"], **args["defines"])
+# Every option the defaults of some version changed is given: the two versions run the same configuration.
 result = mi_nest.optimize(scene, args["data"], iterations=args["iterations"], kind="grid",
-                          resolution=args["resolution"], batch_size=args["batch_size"], seed=0, progress=False)
+                          resolution=args["resolution"], batch_size=args["batch_size"], learning_rate=0.03,
+                          final_learning_rate=0.003, smoothness=0.0, smoothness_edge=None, average_last=0.0, seed=0,
+                          progress=False)
 print(json.dumps({"seconds": result.seconds, "iterations": len(result.history),
                   "loss": result.history[-1]["loss"], "error": result.metrics.get("deviatoric_error"),
                   "mi_nest": mi_nest.__file__}))

@@ -18,20 +18,8 @@ from .scene import parse_define
 
 # `mi-nest reconstruct --minutes` without --iterations: the clock alone ends the run.
 UNBOUNDED_ITERATIONS = 10 ** 9
-# Numeric options of `mi-nest reconstruct` passed on to optimize: (flag, type, default and meaning).
-RECONSTRUCT_OPTIONS = (("iterations", int, "600"), ("batch-size", int, "4096 rays"),
-                       ("resolution", int, "32 grid nodes along the longest axis"),
-                       ("learning-rate", float, "0.03"), ("step-size", float, "half the grid spacing"),
-                       ("smoothness", float, "0; weight of the mean squared stress gradient, lengths in box widths"),
-                       ("final-smoothness", float, "none, a constant weight; the weight at the end, "
-                                                   "decayed geometrically over the finest grid stage"),
-                       ("smoothness-edge", float, "none; gradient above which the finest stage's "
-                                                  "smoothness penalty grows linearly (Charbonnier)"),
-                       ("average-last", float, "0; share of the run at its end whose iterates are "
-                                               "averaged into the result"),
-                       ("relative-to", float, "none; field RMS (stress scales) above which the smoothness falls "
-                                              "as its square and the edge grows with it"),
-                       ("warm-start", float, "0: no Two-step warm start"))
+# The options of `mi-nest reconstruct` besides those it names: `--option NAME=VALUE` (any of optimize's).
+OPTION_EXAMPLES = "batch_size=4096, learning_rate=0.03, smoothness=0, average_last=0, seed=1, warm_start=0.2"
 
 
 def _parser():
@@ -129,15 +117,18 @@ def _parser():
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")
-    for name, kind, default_help in RECONSTRUCT_OPTIONS:
-        reconstruct.add_argument(f"--{name}", type=kind, help=f"(default: {default_help})")
-    reconstruct.add_argument("--regularised", action="store_true",
-                             help="the grid regulariser that met the targets (mi_nest.reconstruct.REGULARISED: a "
-                                  "smoothness with an edge, the last iterates averaged); the options above override "
-                                  "its parts")
+    reconstruct.add_argument("--iterations", type=int, help="(default: 20000, what the targets needed)")
     reconstruct.add_argument("--minutes", type=float,
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")
+    reconstruct.add_argument("--resolution", type=int,
+                             help="grid nodes along the longest axis (default: 32, 48 or 64, the coarsest that puts "
+                                  "10 nodes across the specimen's thinnest side)")
+    reconstruct.add_argument("--no-regulariser", action="store_true",
+                             help="the plain fit, without the grid's default smoothness and iterate averaging")
+    reconstruct.add_argument("--option", dest="options", action="append", type=parse_define, default=[],
+                             metavar="NAME=VALUE", help=f"any other option of mi_nest.optimize (repeatable; e.g. "
+                                                        f"{OPTION_EXAMPLES}; docs/reconstruction.md lists them)")
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
                                   "is the baseline: per-view unwrapping, then linear tomography)")
@@ -306,9 +297,11 @@ def _reconstruction_scene(args, dataset):
 
 def _reconstruction_options(args):
     """``optimize``'s options from the flags given."""
-    from .reconstruct import REGULARISED
-    options = {"kind": args.kind, **({"regulariser": REGULARISED} if args.regularised else {})}
-    for name in [flag.replace("-", "_") for flag, _, _ in RECONSTRUCT_OPTIONS] + ["method"]:
+    from .reconstruct import NO_REGULARISER, option_value
+    options = {"kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {})}
+    for name, text in args.options:
+        options[name.replace("-", "_")] = option_value(name.replace("-", "_"), text)
+    for name in ("iterations", "resolution", "method"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     if args.minutes is not None:

@@ -1,5 +1,6 @@
 """Reconstruction: trainable fields, metrics, the optimiser (smoke, resume, divergence, options), CLI."""
 import json
+from dataclasses import replace
 
 import drjit as dr
 import mitsuba as mi
@@ -11,11 +12,12 @@ from mi_nest import occupancy
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.fields import UniformField
-from mi_nest.reconstruct import (REGULARISED, DivergenceError, FieldConfig, OptimizeConfig, Reconstruction, Regulariser,
-                                 make_field, optimize)
+from mi_nest.reconstruct import (NO_REGULARISER, REGULARISED, DivergenceError, FieldConfig, OptimizeConfig,
+                                 Reconstruction, Regulariser, make_field, optimize)
 from mi_nest.reconstruct import loop, metrics
 from mi_nest.reconstruct.evaluation import dataset_loss
-from mi_nest.reconstruct.fields import choose_kind, grid_shape, refined
+from mi_nest.reconstruct.fields import (DEFAULT_RESOLUTIONS, MIN_NODES_ACROSS, choose_kind, default_resolution,
+                                       grid_shape, refined, settle)
 from mi_nest.scene import specimen_bounds, specimen_shapes
 
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
@@ -95,6 +97,32 @@ def test_auto_picks_the_grid_until_it_grows_too_large():
     assert choose_kind(FieldConfig(resolution=256), (40, 40, 40)) == "hashgrid"
     assert choose_kind(FieldConfig(kind="mlp"), (1, 1, 1)) == "mlp"
     assert grid_shape(5, (4.0, 2.0, 1.0)) == (5, 3, 2)
+
+
+@pytest.mark.parametrize("extent, resolution", [((59.9, 54.3, 91.9), 32), ((40, 40, 12), 32), ((40, 40, 10), 48),
+                                                 ((40, 40, 6), 64), ((40, 40, 1), 64)],
+                         ids=["kitten", "stacked disks", "lame cylinder", "disk", "foil"])
+def test_the_default_grid_puts_ten_nodes_across_the_thinnest_side(extent, resolution):
+    """The kitten met its target at 32 nodes along its longest axis, the 6 mm disk only at 64."""
+    assert default_resolution(extent) == resolution
+    shape = grid_shape(resolution, extent)
+    assert min(shape) >= MIN_NODES_ACROSS or resolution == DEFAULT_RESOLUTIONS[-1]
+    assert resolution == DEFAULT_RESOLUTIONS[0] or min(grid_shape(resolution - 16, extent)) < MIN_NODES_ACROSS
+
+
+def test_the_defaults_settle_on_a_specimen():
+    """The kind, the resolution and the regulariser a run records are what it did, never 'auto'."""
+    settled = settle(OptimizeConfig(), np.array([40.0, 40.0, 6.0]))
+    assert (settled.field.kind, settled.field.resolution, settled.regulariser) == ("grid", 64, REGULARISED)
+    # Too many nodes for a grid: a hash grid, and the grids' regulariser is not carried over to it.
+    large = settle(OptimizeConfig(resolution=256), np.array([40.0, 40.0, 40.0]))
+    assert (large.field.kind, large.regulariser) == ("hashgrid", NO_REGULARISER)
+    with pytest.raises(ValueError, match="acts on grids only"):
+        settle(OptimizeConfig(resolution=256, smoothness=1e-3), np.array([40.0, 40.0, 40.0]))
+    assert settle(OptimizeConfig(resolution=20), np.array([40.0, 40.0, 6.0])).field.resolution == 20
+    assert OptimizeConfig(kind="mlp").regulariser == NO_REGULARISER
+    assert OptimizeConfig(kind="mlp", average_last=0.2).regulariser == replace(NO_REGULARISER, average_last=0.2)
+    assert OptimizeConfig(kind="grid", smoothness=0.0).regulariser == replace(REGULARISED, smoothness=0.0)
 
 
 @pytest.mark.parametrize("resolution, stages", [(6, [4, 6]), (16, [4, 8, 16]), (32, [8, 16, 32]),
@@ -391,7 +419,7 @@ def test_bad_options_and_mismatched_material_are_refused(tiny_dataset):
 
 def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
     assert main(["reconstruct", str(tiny_dataset), "-o", str(tmp_path / "result"), "--iterations", "2",
-                 "--batch-size", "64", "--resolution", "6", "--kind", "grid", "--no-progress"]) == 0
+                 "--option", "batch_size=64", "--resolution", "6", "--kind", "grid", "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "relative deviatoric stress error" in out and "PSNR" in out
     assert (tmp_path / "result" / "field.npz").is_file()
@@ -400,7 +428,7 @@ def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
 
 
 def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys):
-    timed = ["reconstruct", str(tiny_dataset), "--batch-size", "64", "--resolution", "6", "--kind", "grid",
+    timed = ["reconstruct", str(tiny_dataset), "--option", "batch_size=64", "--resolution", "6", "--kind", "grid",
              "--no-progress", "--minutes"]
     assert main([*timed, "0.005", "-o", str(tmp_path / "result")]) == 0
     history = json.loads((tmp_path / "result" / "reconstruction.json").read_text())["history"]
@@ -411,18 +439,39 @@ def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys
     assert "'time_limit' must be a positive number" in capsys.readouterr().err
 
 
-def test_cli_reconstructs_with_the_targets_regulariser_and_explicit_options_override_it(tiny_dataset, tmp_path,
-                                                                                       capsys):
-    common = ["reconstruct", str(tiny_dataset), "--iterations", "2", "--batch-size", "64", "--resolution", "6",
-              "--no-progress", "--regularised"]
-    assert main([*common, "--kind", "grid", "--smoothness", "1e-3", "-o", str(tmp_path / "grid")]) == 0
-    config = json.loads((tmp_path / "grid" / "reconstruction.json").read_text())["config"]
-    assert config["regulariser"]["smoothness"] == 1e-3
-    assert config["regulariser"]["smoothness_edge"] == REGULARISED.smoothness_edge
-    assert config["regulariser"]["average_last"] == REGULARISED.average_last
-    # Other representations have no smoothness to regularise: refused, not ignored.
-    assert main([*common, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 2
+def test_cli_defaults_to_the_targets_regulariser_and_options_override_it(tiny_dataset, tmp_path, capsys):
+    common = ["reconstruct", str(tiny_dataset), "--iterations", "2", "--option", "batch_size=64", "--resolution", "6",
+              "--no-progress"]
+
+    def config(name):
+        return json.loads((tmp_path / name / "reconstruction.json").read_text())["config"]
+
+    assert main([*common, "-o", str(tmp_path / "default")]) == 0
+    assert config("default")["field"]["kind"] == "grid"
+    assert Regulariser(**config("default")["regulariser"]) == REGULARISED
+    assert config("default")["optimiser"]["batch_size"] == 64
+    assert main([*common, "--option", "smoothness=1e-3", "--option", "final-smoothness=none",
+                 "-o", str(tmp_path / "grid")]) == 0
+    assert config("grid")["regulariser"]["smoothness"] == 1e-3
+    assert config("grid")["regulariser"]["smoothness_edge"] == REGULARISED.smoothness_edge
+    assert config("grid")["regulariser"]["average_last"] == REGULARISED.average_last
+    assert main([*common, "--no-regulariser", "-o", str(tmp_path / "plain")]) == 0
+    assert Regulariser(**config("plain")["regulariser"]) == NO_REGULARISER
+    # Other representations have no smoothness: the default leaves it out, a smoothness asked for is refused.
+    assert main([*common, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 0
+    assert Regulariser(**config("mlp")["regulariser"]) == NO_REGULARISER
+    capsys.readouterr()
+    assert main([*common, "--kind", "mlp", "--option", "smoothness=1e-3", "-o", str(tmp_path / "refused")]) == 2
     assert "acts on grids only" in capsys.readouterr().err
+    for option, message in (("smoothnes=1", "unknown option 'smoothnes'; the options are average_last, "),
+                            ("batch_size=6.5", "option 'batch_size' takes an integer, got '6.5'")):
+        assert main([*common, "--option", option, "-o", str(tmp_path / "bad")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, err
+    with pytest.raises(SystemExit) as usage:
+        main([*common, "--option", "batch_size", "-o", str(tmp_path / "bad")])
+    assert usage.value.code == 2 and "expected NAME=VALUE, got 'batch_size'" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):

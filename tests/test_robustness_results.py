@@ -189,8 +189,8 @@ def test_a_runaway_fit_is_divergence(tiny_dataset, tmp_path, capsys):
     """Reconstruct: learning rate 1e6 reported a 9e8 % error with exit code 0; a field that runs away
     beyond what the images could resolve stops the run, keeps the last good checkpoint, exits 2."""
     output = tmp_path / "run"
-    assert main(["reconstruct", str(tiny_dataset), "-o", str(output), "--learning-rate", "1e6", "--iterations",
-                 "20", "--batch-size", "64", "--resolution", "6", "--no-progress"]) == 2
+    assert main(["reconstruct", str(tiny_dataset), "-o", str(output), "--option", "learning_rate=1e6", "--iterations",
+                 "20", "--option", "batch_size=64", "--resolution", "6", "--no-progress"]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "optimisation diverged at iteration 20: the field ran away to " in error
     assert "no checkpoint was written yet. Lower the learning_rate" in error

@@ -151,7 +151,7 @@ def test_ctrl_c_in_reconstruct_writes_the_checkpoint_it_names(tiny_dataset, tmp_
     """
     output = tmp_path / "result"
     code, err, seconds = _interrupt(["reconstruct", tiny_dataset, "-o", output, "--iterations", "1000000",
-                                     "--batch-size", "64", "--resolution", "6", "--no-progress"],
+                                     "--option", "batch_size=64", "--resolution", "6", "--no-progress"],
                                     lambda _: (output / "checkpoint.npz").is_file(), delay)
     messages = _messages(err)
     assert code == INTERRUPTED_STATUS and "Traceback" not in err, err
@@ -279,7 +279,7 @@ def test_temporary_files_of_a_killed_writer_are_removed_by_the_next_write(tmp_pa
 def test_a_corrupt_checkpoint_gets_one_line_naming_restart(tiny_dataset, tmp_path, capsys, damage):
     """Item 5 (corrupt files): a damaged checkpoint was a BadZipFile traceback; now one line naming --restart."""
     output = tmp_path / "result"
-    arguments = ["reconstruct", str(tiny_dataset), "-o", str(output), "--iterations", "2", "--batch-size", "64",
+    arguments = ["reconstruct", str(tiny_dataset), "-o", str(output), "--iterations", "2", "--option", "batch_size=64",
                  "--resolution", "6", "--no-progress"]
     assert main(arguments) == 0
     checkpoint = output / "checkpoint.npz"

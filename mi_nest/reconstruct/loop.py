@@ -26,7 +26,7 @@ from ..scene import specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import OptimizeConfig
-from .fields import choose_kind, make_field, refined
+from .fields import make_field, refined
 from .forward import make_integrator
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
@@ -58,7 +58,7 @@ class Run:
         self.scene, self.dataset, self.config = scene, dataset, config
         self.output = None if output is None else Path(output)
         self.show_progress = progress
-        self.kind = choose_kind(config.field, high - low)
+        self.kind = config.field.kind       # settled by optimize (fields.settle)
         self.stages = self._stages()
         self.field = make_field(replace(config.field, kind=self.kind, resolution=self.stages[0][1]), low, high,
                                 scale)
@@ -359,7 +359,7 @@ class Run:
         """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
         if self.iterates_averaged:
             self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
-        self._require_sane_field()
+            self._require_sane_field()      # the last checkpoint checked the last iterate, not their mean
         return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
 
 

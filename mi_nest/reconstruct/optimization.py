@@ -25,6 +25,7 @@ from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .config import OptimizeConfig
 from .evaluation import evaluate
+from .fields import settle
 from .loop import Run
 
 
@@ -39,8 +40,9 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     ground truth of the error metrics (pass ``truth=None`` for real captures,
     or any ``StressField``). ``options`` are :class:`OptimizeConfig`'s: flat
     options (``iterations=300, kind="mlp"``...), whole groups
-    (``regulariser=REGULARISED``), or ``config=`` a whole configuration that
-    the others override.
+    (``regulariser=NO_REGULARISER``), or ``config=`` a whole configuration that
+    the others override. The defaults are the configuration that met the
+    reconstruction targets (:mod:`~mi_nest.reconstruct.config`).
 
     With ``output``, checkpoints go to ``output/checkpoint.npz`` every
     ``checkpoint_every`` iterations (and on interruption), and a rerun resumes
@@ -62,6 +64,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         truth_field = None
 
     low, high = specimen_bounds(shapes)
+    config = settle(config, high - low)
     scale = stress_scale(media, low, high)
     run = Run(scene, dataset, config, low, high, scale, output, progress)
     if truth_field is not None and config.reporting.track_error_every:
