@@ -11,10 +11,10 @@ import mitsuba as mi
 from mi_nest import occupancy
 from mi_nest.fields import StressField
 from mi_nest.integration import film as films
-from mi_nest.integration import guards, methods
+from mi_nest.integration import guards, methods, refraction
 from mi_nest.integration.film import CHANNELS, UNDIFFERENTIATED
 from mi_nest.integration.setup import SceneSetup
-from mi_nest.physics import MEASUREMENTS, su2
+from mi_nest.physics import MEASUREMENTS, jones, su2
 from mi_nest.physics.aliasing import FringeAliasing
 
 # Queries again, each from a little further on, for a crossing that a ray inside a specimen did not find (walk).
@@ -84,7 +84,17 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     surface, exit at the next crossing; specimens may touch face to face, but
     not nest), and multiplies the exact exponential
     of each constant-stress step as an SU(2) quaternion, renormalised at every
-    step. Any other shape is opaque.
+    step. Any other shape is opaque, unless its surface is a smooth
+    ``dielectric`` (an immersion bath).
+
+    A specimen or bath whose surface carries ``<bsdf type="dielectric">``
+    refracts: the walk follows Snell's law at it and multiplies in the Fresnel
+    transmission as a Jones matrix in the ray's transverse frame, carried along
+    the bent path without twist; total internal reflection reflects the ray
+    with its phases (docs/physics.md section 8, ``mi_nest/integration/
+    refraction.py``). The Jones channels then hold the specimens' own product
+    and the intensities the whole path's. Renders only: gradients through
+    refracting surfaces are not available yet.
 
     The film receives the intensity of the scene's polariscope as its main
     channel (``Y``) and, as named channels, the Jones product
@@ -192,6 +202,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             raise ValueError("photoelastic: differentiable rendering needs a box-filtered film "
                              '(<rfilter type="box"/>) without border')
         with self._prepared(scene, sensor) as prepared, dr.suspend_grad():
+            guards.refuse_refraction(prepared.setup, "differentiable rendering")
             prepared.decision.method.require_adjoint()
             sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
             ray, weight, _ = self.sample_rays(scene, sensor, sampler)
@@ -257,6 +268,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         its path length (mm) inside specimens.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
+            guards.refuse_refraction(prepared.setup, "reconstruction")
             seeds = _ray_seeds(seed, dr.width(rays.o))
             method = prepared.decision.method
             (state, _), blocked, length = self.walk(scene, rays, prepared, mi.Bool(True), seeds,
@@ -274,6 +286,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         grow with the number of steps.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
+            guards.refuse_refraction(prepared.setup, "reconstruction")
             prepared.decision.method.require_adjoint()
             # Unevaluated adjoints carry the loss's constants (1 / batch size...) into the kernel,
             # which would then be rebuilt whenever they change.
@@ -300,6 +313,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         prepared = self._prepared_now
         method = prepared.decision.method
         seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
+        if mode == dr.ADMode.Primal and prepared.setup.refracting:
+            path = self.walk_refracted(scene, ray, prepared, active, seeds)
+            main, aovs = self.outputs(path.stress, path.fringe, path.blocked, path.length, path.jones)
+            return main, mi.Bool(True), aovs, None
         if mode == dr.ADMode.Primal:
             (state, fringe), blocked, length = self.walk(scene, ray, prepared, active, seeds,
                                                          method.trace_start(), method.trace)
@@ -326,18 +343,27 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.replay(scene, ray, prepared, active, seeds, state, state_grad)
         return mi.Spectrum(0), mi.Bool(True), [mi.Float(0)] * len(CHANNELS), None
 
-    def outputs(self, state: tuple, fringe: tuple, blocked: mi.Bool,
-                length: mi.Float) -> tuple[mi.Spectrum, list[mi.Float]]:
-        """Main intensity and the AOV channels from a traced state."""
+    def outputs(self, state: tuple, fringe: tuple, blocked: mi.Bool, length: mi.Float,
+                path_jones: jones.Biquaternion | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
+        """Main intensity and the AOV channels from a traced state; with ``path_jones`` (a refracted path's
+        whole Jones matrix) the intensities are its, the Jones channels the specimens' own."""
         setup = self._prepared_now.setup
         q = self.jones(state, blocked)
         delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
+        if path_jones is None:
+            def intensity(scope):
+                return scope.intensity(q)
+        else:
+            path_jones = tuple(tuple(dr.select(blocked, 0.0, x) for x in part) for part in path_jones)
+
+            def intensity(scope):
+                return jones.intensity(scope.coefficients(), path_jones)
         aovs = list(q) + [delta, theta, gamma]
-        aovs += [radiance * scope.intensity(q) for scope in MEASUREMENTS.values()]
+        aovs += [radiance * intensity(scope) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        return mi.Spectrum(radiance * setup.polariscope.intensity(q)), aovs
+        return mi.Spectrum(radiance * intensity(setup.polariscope)), aovs
 
     @dr.syntax
     def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
@@ -409,6 +435,23 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             crossings += 1
             active &= (hit | look_again) & ~blocked & (crossings < self.max_crossings)
         return carry, blocked, length
+
+    def trace_refracted(self, scene: mi.Scene, rays: mi.Ray3f, sensor: int | mi.Sensor = 0,
+                        seed: int = 0) -> refraction.RefractedPath:
+        """The refracted walk of arbitrary ``rays`` in ``sensor``'s polariscope frame: each ray's exit point and
+        direction, interfaces crossed and Jones matrices (for tools and tests; renders call it per sample)."""
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        with dr.suspend_grad(), self._prepared(scene, sensor) as prepared:
+            path = self.walk_refracted(scene, rays, prepared, mi.Bool(True), _ray_seeds(seed, dr.width(rays.o)))
+            dr.eval(path)
+            return path
+
+    def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool,
+                       seeds: mi.UInt32) -> refraction.RefractedPath:
+        """The walk where surfaces refract (``mi_nest/integration/refraction.py``)."""
+        return refraction.trace(scene, ray, prepared.setup, prepared.decision.method, prepared.decision.step_size,
+                                seeds, active, self.max_crossings, RaySegment)
 
     def replay(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
                state: tuple, state_grad: tuple) -> None:

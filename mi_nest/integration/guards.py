@@ -25,13 +25,14 @@ class SceneSetupError(ValueError):
     """The scene cannot be rendered photoelastically (no specimen, no polariscope...)."""
 
 
-def require_closed(shape: mi.Shape, shape_id: int) -> None:
-    """A specimen must be a closed surface, or rays that enter it never leave."""
+def require_closed(shape: mi.Shape, shape_id: int, what: str = "specimen") -> None:
+    """A specimen (or a bath) must be a closed surface, or rays that enter it never leave."""
     name = shape.id() or shape.class_name()
+    holds = "a stress medium" if what == "specimen" else "a bath's liquid"
     if not shape.is_mesh():
         if shape.class_name() not in CLOSED_ANALYTIC_SHAPES:
-            raise SceneSetupError(f"photoelastic: specimen '{name}' ({shape.class_name()}) is not a closed "
-                                  "surface; use a closed mesh (or a sphere) to hold a stress medium")
+            raise SceneSetupError(f"photoelastic: {what} '{name}' ({shape.class_name()}) is not a closed "
+                                  f"surface; use a closed mesh (or a sphere) to hold {holds}")
         return
     key = (shape_id, shape.face_count())
     if key in _closed_shapes:
@@ -44,7 +45,7 @@ def require_closed(shape: mi.Shape, shape_id: int) -> None:
     _, uses = np.unique(edges, axis=0, return_counts=True)
     open_edges = int(np.count_nonzero(uses != 2))
     if open_edges:
-        raise SceneSetupError(f"photoelastic: specimen '{name}' is not a closed mesh ({open_edges} edges not "
+        raise SceneSetupError(f"photoelastic: {what} '{name}' is not a closed mesh ({open_edges} edges not "
                               "shared by exactly two faces); rays entering it would never leave")
     _closed_shapes.add(key)
 
@@ -77,3 +78,12 @@ def check_aliasing(order: np.ndarray, length: np.ndarray) -> aliasing.FringeAlia
                       f"{report.resolution_factor}x the resolution, or supersample (spp) to average the "
                       "fringes within each pixel as a camera does", RuntimeWarning, stacklevel=3)
     return report
+
+
+def refuse_refraction(setup, what: str) -> None:
+    """Gradients and training rays follow straight paths only: a refracting scene is refused, not traced
+    wrongly."""
+    if setup.refracting:
+        raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet (renders "
+                              "are); drop the specimens' and baths' dielectric BSDFs for index-matched straight "
+                              "rays")

@@ -17,6 +17,7 @@ from mi_nest.fields import StressField
 from mi_nest.physics import Polariscope, projection
 from mi_nest.plugins import polariscope, polariscope_light, stress
 
+from . import refraction
 from .guards import SceneSetupError, require_closed
 
 if TYPE_CHECKING:
@@ -36,9 +37,20 @@ class SceneSetup:
         self.media = []
         self.specimens = []     # (shape, index of its medium), in scene order
         shape_media = {}
+        shape_ratios = {}       # shape id -> int_ior / ext_ior of its dielectric surface
+        baths = []
         bounds = mi.ScalarBoundingBox3f()
         for shape in scene.shapes():
             medium = shape.interior_medium()
+            ratio = refraction.interface_ratio(shape)
+            if ratio == 1.0 and isinstance(medium, stress.StressMedium):
+                ratio = None        # index-matched: the straight walk, as without a surface
+            if ratio is not None:
+                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+                shape_ratios[shape_id] = ratio
+                if not isinstance(medium, stress.StressMedium):
+                    require_closed(shape, shape_id, "bath")
+                    baths.append(shape)
             if isinstance(medium, stress.StressMedium):
                 bounds.expand(shape.bbox())
                 shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
@@ -56,6 +68,17 @@ class SceneSetup:
         for shape_id, index in shape_media.items():
             table[shape_id] = index
         self.medium_of_shape = mi.UInt32(table)
+        # Where surfaces refract, the walk of integration/refraction.py follows the bent paths.
+        self.refracting = bool(shape_ratios)
+        if self.refracting:
+            ratios = np.zeros(max(max(shape_ratios), len(table) - 1) + 1, dtype=np.float32)
+            for shape_id, ratio in shape_ratios.items():
+                ratios[shape_id] = ratio
+            self.ratio_of_shape = mi.Float(ratios)
+            self.medium_of_shape = mi.UInt32(np.pad(table, (0, len(ratios) - len(table))))
+            for bath in baths:
+                for shape, _ in self.specimens:
+                    refraction.require_apart(scene, shape, bath)
         self.fields = [medium.field if field is None else field for medium in self.media]
         # Per medium, ``pi C / lambda`` times its field's stress at points: phase per mm.
         self.phase_tensors = [_phase_tensor(f, medium.phase_rate) for f, medium in zip(self.fields, self.media)]
@@ -85,6 +108,15 @@ class SceneSetup:
         once per ray, instead of scaling six components at every step.
         """
         alpha, beta = projection.projection_coefficients(*projection.transverse_basis(-d, self.right))
+        if len(self.media) == 1:
+            rate = self.media[0].phase_rate
+            alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
+        return alpha, beta
+
+    def frame_coefficients(self, u: mi.Vector3f, v: mi.Vector3f) -> tuple[tuple, tuple]:
+        """:meth:`projection_coefficients` for a ray whose transverse frame ``(u, v)`` is carried along a bent
+        path (integration/refraction.py)."""
+        alpha, beta = projection.projection_coefficients(u, v)
         if len(self.media) == 1:
             rate = self.media[0].phase_rate
             alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)

@@ -64,6 +64,27 @@ def flux_coefficients(cos_i: np.ndarray, n1: float, n2: float) -> tuple[np.ndarr
     return r_s, r_p, t_s * scale, t_p * scale
 
 
+def transmitted_flux_amplitudes(cos_i: Array, ratio: Array) -> tuple[Array, Array]:
+    """``(tau_s, tau_p)`` of :func:`flux_coefficients` (real) for incidence ``cos_i`` and ``ratio = n2 / n1``, on
+    NumPy or Dr.Jit; zero beyond the critical angle."""
+    xp = ops(cos_i, ratio)
+    sin_t2 = (1.0 - cos_i * cos_i) / (ratio * ratio)
+    cos_t = xp.sqrt(xp.maximum(1.0 - sin_t2, 0.0))
+    s_den = cos_i + ratio * cos_t
+    p_den = ratio * cos_i + cos_t
+    # t_s = 2 cos_i / s_den and t_p = 2 cos_i / p_den (n1 = 1), times sqrt(ratio cos_t / cos_i).
+    flux = 2.0 * xp.sqrt(xp.maximum(ratio * cos_t * cos_i, 0.0))
+    return flux / s_den, flux / p_den
+
+
+def reflection_phases(cos_i: Array, ratio: Array) -> tuple[Array, Array]:
+    """Phases ``(phi_s, phi_p)`` of ``r_s``, ``r_p`` beyond the critical angle (``ratio = n2 / n1 < 1``), on
+    NumPy or Dr.Jit: :func:`total_reflection_phases`."""
+    xp = ops(cos_i, ratio)
+    root = xp.sqrt(xp.maximum(1.0 - cos_i * cos_i - ratio * ratio, 0.0))
+    return 2.0 * xp.atan2(root, cos_i), 2.0 * xp.atan2(root, ratio * ratio * cos_i)
+
+
 def brewster_angle(n1: float, n2: float) -> float:
     """Incidence angle (radians) at which p light is transmitted whole."""
     _require_indices(n1, n2)

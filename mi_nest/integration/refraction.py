@@ -1,0 +1,176 @@
+"""Refracting surfaces: which shapes are dielectric interfaces, and the walk that bends at them
+(docs/physics.md section 8).
+
+A shape whose BSDF is Mitsuba's smooth ``dielectric`` is an interface with the
+index ratio ``int_ior / ext_ior`` (Mitsuba's ``eta``): a specimen's own surface,
+or a bath (a closed shape without a stress medium: an immersion tank's liquid
+or wall). Without one, a specimen is index-matched and its rays run straight
+(the plugin's own walk, unchanged). As in Mitsuba, each surface says what lies
+on either side of it: nested interfaces must agree (a specimen's ``ext_ior`` is
+its bath's ``int_ior``).
+
+The walk follows the path the light takes to each camera pixel, traced from
+the camera: Snell's law at each interface, the Fresnel transmission (flux
+amplitudes) as a Jones matrix in the ray's transverse frame, which is carried
+across without twist; where the traced ray cannot leave (total internal
+reflection) it is reflected with the reflection's phases. Partial reflections
+are not followed. The stress march runs as before on each straight segment
+inside a specimen. The light's and the camera's polariscope elements act in
+the frame carried to each end, as sheets normal to the ray there.
+"""
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, NamedTuple
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from mi_nest import occupancy
+from mi_nest.physics import interface, jones, projection, su2
+
+from .guards import SceneSetupError
+
+if TYPE_CHECKING:
+    from .setup import SceneSetup
+
+# Mitsuba's BSDF classes a surface may carry, and why the others that transmit are refused.
+INTERFACE_BSDF = "SmoothDielectric"
+REFUSED_BSDFS = {
+    "RoughDielectric": "a rough dielectric scatters the light it transmits, which no Jones product follows; "
+                       "use a smooth 'dielectric'",
+    "ThinDielectric": "a thin dielectric sheet has no inside to hold a stress field or a bath; use a closed "
+                      "shape with a 'dielectric'",
+}
+
+
+def interface_ratio(shape: mi.Shape) -> float | None:
+    """``int_ior / ext_ior`` of ``shape``'s surface, or None where it carries no dielectric."""
+    bsdf = shape.bsdf()
+    if bsdf is None:
+        return None
+    kind = bsdf.class_name()
+    name = shape.id() or shape.class_name()
+    if kind in REFUSED_BSDFS:
+        raise SceneSetupError(f"photoelastic: the surface of '{name}' is a {kind}: {REFUSED_BSDFS[kind]}")
+    if kind != INTERFACE_BSDF:
+        return None
+    ratio = float(mi.traverse(bsdf)["eta"])
+    if not (math.isfinite(ratio) and ratio > 0):
+        raise SceneSetupError(f"photoelastic: the dielectric surface of '{name}' has int_ior / ext_ior = {ratio}; "
+                              "give both indices as positive numbers (or a material name Mitsuba knows)")
+    return ratio
+
+
+def require_apart(scene: mi.Scene, specimen: mi.Shape, bath: mi.Shape, samples: int = 512) -> None:
+    """A bath's surface must not cut a specimen: the specimen lies wholly inside it or wholly outside."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(0, samples)
+    points = specimen.sample_position(0.0, sampler.next_2d()).p
+    inside = occupancy.inside(scene, [bath], np.array(points).T)
+    if inside.any() and not inside.all():
+        raise SceneSetupError(f"photoelastic: the surface of bath '{bath.id() or bath.class_name()}' cuts specimen "
+                              f"'{specimen.id() or specimen.class_name()}' ({int(inside.sum())} of {samples} points "
+                              "of the specimen's surface inside it); a bath must hold its specimens whole")
+
+
+class RefractedPath(NamedTuple):
+    """What the refracted walk gives per ray."""
+    jones: jones.Biquaternion   # the whole path's Jones matrix, interfaces included (light order)
+    stress: su2.Quaternion      # the product of the specimens' segments alone
+    fringe: tuple               # summed (b, c) of the step generators (the fringe-order channel)
+    blocked: mi.Bool            # an opaque shape stops it
+    length: mi.Float            # mm inside specimens
+    exit_point: mi.Point3f      # where it left the last interface
+    exit_direction: mi.Vector3f  # and in which direction (traced from the camera)
+    interfaces: mi.UInt32       # interfaces crossed or reflected at
+
+
+@dr.syntax
+def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
+          active: mi.Bool, max_crossings: int, make_segment) -> RefractedPath:
+    """Follow each camera ray through every interface and specimen; see the module's docstring."""
+    d = mi.Vector3f(ray.d)
+    u, v = projection.transverse_basis(-d, setup.right)
+    u, v = mi.Vector3f(u), mi.Vector3f(v)
+    origin = mi.Point3f(ray.o)
+    launch = mi.Point3f(ray.o)
+    reach = mi.Float(ray.maxt)
+    medium = mi.UInt32(0)
+    state, fringe = method.trace_start()
+    total = _where_biquaternion(mi.Bool(False), jones.from_quaternion(su2.identity(mi.Float(0))))
+    stress = su2.identity(mi.Float(0))
+    blocked = mi.Bool(False)
+    length = mi.Float(0)
+    crossings = mi.UInt32(0)
+    interfaces = mi.UInt32(0)
+    active = mi.Bool(active)
+
+    while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment]):
+        si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
+                                 ray_flags=mi.RayFlags.Minimal, coherent=False, active=active)
+        hit = si.is_valid()
+        shape = dr.reinterpret_array(mi.UInt32, si.shape)
+        hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
+        ratio = dr.gather(mi.Float, setup.ratio_of_shape, shape, hit)
+        is_interface = hit & (ratio > 0)
+        entering = dr.dot(si.n, d) < 0
+
+        chord = dr.norm(si.p - origin)
+        marched = active & hit & (medium != 0)
+        steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
+        h = chord / mi.Float(dr.maximum(steps, 1))
+        coefficients = setup.frame_coefficients(u, v)
+        segment_seed = mi.sample_tea_32(seeds, crossings)[0]
+        state, fringe = method.trace((state, fringe), make_segment(steps, h, medium, origin, d, coefficients,
+                                                                   segment_seed), setup)
+        length += dr.select(marched, chord, 0.0)
+        blocked |= active & hit & (hit_medium == 0) & ~is_interface
+
+        # At an interface, the stress product since the last one joins the path's matrix, then the interface.
+        bend = active & is_interface
+        segment_jones = _where(bend, method.finish(state), su2.identity(mi.Float(0)))
+        stress = su2.multiply(stress, segment_jones)
+        total = jones.multiply(total, jones.from_quaternion(segment_jones))
+        state = _where(bend, method.trace_start()[0], state)
+        # The traced ray goes from index n to n * step; the light the other way.
+        step = dr.select(entering, ratio, dr.rcp(dr.maximum(ratio, 1e-30)))
+        turned, cos_traced, reflected = interface.refract(d, si.n, mi.Float(1.0), step)
+        turned = mi.Vector3f(turned)
+        s_axis = mi.Vector3f(interface.s_axis(d, si.n, u))
+        angle = interface.s_angle(u, v, s_axis)
+        cos_light = dr.abs(dr.dot(turned, si.n))
+        tau_s, tau_p = interface.transmitted_flux_amplitudes(cos_light, dr.rcp(dr.maximum(step, 1e-30)))
+        phi_s, phi_p = interface.reflection_phases(cos_traced, step)
+        x = (dr.select(reflected, dr.cos(phi_s), tau_s), dr.select(reflected, dr.sin(phi_s), 0.0))
+        y = (dr.select(reflected, dr.cos(phi_p), tau_p), dr.select(reflected, dr.sin(phi_p), 0.0))
+        total = jones.multiply(total, _where_biquaternion(bend, jones.diattenuator(x, y, angle)))
+        u = dr.select(bend, mi.Vector3f(interface.transported(u, d, turned, s_axis)), u)
+        v = dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v)
+        new_d = dr.select(bend, turned, d)
+        interfaces += dr.select(bend, 1, 0)
+
+        # A specimen's own surface: in or out of its medium (specimens are not nested in one another).
+        medium = dr.select(active & hit & (hit_medium != 0), dr.select(entering, hit_medium, 0), medium)
+        origin = dr.select(active & hit, si.p, origin)
+        launch = dr.select(active & hit, occupancy.past_surface(si, new_d), launch)
+        d = new_d
+        reach = dr.select(active & hit, dr.inf, reach)
+        crossings += 1
+        active &= hit & ~blocked & (crossings < max_crossings)
+
+    segment_jones = method.finish(state)
+    stress = su2.multiply(stress, segment_jones)
+    total = jones.multiply(total, jones.from_quaternion(segment_jones))
+    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces)
+
+
+def _where(condition: mi.Bool, chosen: tuple, other: tuple) -> tuple:
+    return tuple(dr.select(condition, a, b) for a, b in zip(chosen, other))
+
+
+def _where_biquaternion(condition: mi.Bool, chosen: jones.Biquaternion) -> jones.Biquaternion:
+    """``chosen`` where ``condition`` holds, the identity elsewhere."""
+    identity = jones.from_quaternion(su2.identity(mi.Float(0)))
+    return jones.Biquaternion((_where(condition, chosen[0], identity[0]), _where(condition, chosen[1], identity[1])))

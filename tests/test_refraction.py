@@ -1,0 +1,183 @@
+"""Refraction and Fresnel at specimen surfaces in the renderer (issue 20; docs/physics.md section 8): closed-form
+slabs, an analytic Snell trace through a sphere, total internal reflection, baths and bad input."""
+import math
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.integration.guards import SceneSetupError
+from mi_nest.physics import MEASUREMENTS, interface, jones
+
+T = mi.ScalarTransform4f
+N = 1.55
+STRESS = {"xx": 2.0, "yy": -1.0, "xy": 0.5}
+
+
+def _scene(specimen, light=None, sensor=None, size=8, **shapes):
+    """Orthographic camera along -z from +z (image right +x, image up +y), 8 mm across."""
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "photoelastic", "step_size": 0.25},
+        "light": {"type": "polariscope_light", "polarizer": 90.0, "qwp": 45.0, **(light or {})},
+        "sensor": {"type": "polariscope", "projection": "orthographic", "qwp": 45.0, "analyzer": 0.0,
+                   "to_world": T().look_at(origin=[0, 0, 100], target=[0, 0, 0], up=[0, 1, 0]) @ T().scale([4, 4, 1]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size, "pixel_format": "luminance",
+                            "rfilter": {"type": "box"}},
+                   "sampler": {"type": "stratified", "sample_count": 1, "jitter": False}, **(sensor or {})},
+        "specimen": specimen, **shapes,
+    }
+    for element in ("light", "sensor"):      # None: the element is absent
+        scene[element] = {k: v for k, v in scene[element].items() if v is not None}
+    return mi.load_dict(scene)
+
+
+def _slab(ior=None, tilt=0.0, stress=None, half_thickness=2.0, half_width=10.0, ext_ior=1.0):
+    slab = {"type": "cube",
+            "to_world": T().rotate([1, 0, 0], tilt) @ T().scale([half_width, half_width, half_thickness]),
+            "interior": {"type": "stress", "stress_optic_coefficient": 1.0, "wavelength": 532.0, "model": "uniform",
+                         **(STRESS if stress is None else stress)}}
+    if ior is not None:
+        slab["bsdf"] = {"type": "dielectric", "int_ior": ior, "ext_ior": ext_ior}
+    return slab
+
+
+def _channels(scene):
+    return mi_nest.render(scene, progress=False).channels
+
+
+def test_a_stressed_slab_at_normal_incidence_is_the_index_matched_render_times_the_fresnel_transmittance():
+    straight, refracted = _channels(_scene(_slab())), _channels(_scene(_slab(N)))
+    transmittance = (4 * N / (1 + N) ** 2) ** 2           # in and out, the same for s and p at normal incidence
+    for name in list(MEASUREMENTS) + ["Y"]:
+        np.testing.assert_allclose(refracted[name], transmittance * straight[name], rtol=2e-5, atol=1e-6,
+                                   err_msg=name)
+    for name in ("jones.a", "jones.b", "jones.c", "jones.d", "path.length"):
+        np.testing.assert_allclose(refracted[name], straight[name], atol=1e-6, err_msg=name)
+    assert straight["pol.45.0.0"].std() < 1e-6 and 0.1 < straight["pol.45.0.0"].mean() < 0.9     # a real retarder
+
+
+@pytest.mark.parametrize("tilt", [30.0, math.degrees(interface.brewster_angle(1.0, N))], ids=["30 deg", "Brewster"])
+def test_an_unstressed_slab_at_oblique_incidence_transmits_as_fresnel_says(tilt):
+    """Tilted about x: the plane of incidence is y-z, so s is image right (u) and p image up (v). Between
+    parallel polarisers along s the two surfaces pass T_s^2, along p T_p^2 (1 at Brewster's angle); the chord
+    inside is t / cos(theta_t)."""
+    cos_i = math.cos(math.radians(tilt))
+    _, _, tau_s, tau_p = interface.flux_coefficients(cos_i, 1.0, N)
+    cos_t = float(np.real(interface.cos_transmitted(cos_i, 1.0, N)))
+    for angle, transmitted in ((0.0, abs(tau_s) ** 4), (90.0, abs(tau_p) ** 4)):
+        channels = _channels(_scene(_slab(N, tilt, stress={}, half_width=30.0), light={"polarizer": angle, "qwp": None},
+                                    sensor={"qwp": None, "analyzer": angle}))
+        np.testing.assert_allclose(channels["Y"], transmitted, rtol=1e-5)
+        np.testing.assert_allclose(channels["path.length"], 4.0 / cos_t, rtol=1e-5)
+    if tilt > 50:
+        assert abs(tau_p) ** 4 == pytest.approx(1.0)
+
+
+def test_a_tilted_slab_shifts_the_ray_sideways_and_keeps_its_direction():
+    tilt, thickness = 35.0, 4.0
+    scene = _scene(_slab(N, tilt, stress={}, half_width=30.0))
+    offsets = np.linspace(-3, 3, 7)
+    rays = mi.Ray3f(mi.Point3f(0.0, mi.Float(offsets), 100.0), mi.Vector3f(0, 0, -1))
+    path = scene.integrator().trace_refracted(scene, rays)
+    direction = np.array(path.exit_direction)
+    np.testing.assert_allclose(direction, [[0] * 7, [0] * 7, [-1] * 7], atol=1e-6)
+    # The exit line's distance from the entry line: t sin(i - t) / cos(t).
+    i = math.radians(tilt)
+    t = math.asin(math.sin(i) / N)
+    shift = thickness * math.sin(i - t) / math.cos(t)
+    exit_y = np.array(path.exit_point)[1]
+    np.testing.assert_allclose(np.abs(exit_y - offsets), shift, rtol=1e-5)
+    assert np.all(np.array(path.interfaces) == 2)
+
+
+def test_a_glass_sphere_bends_rays_as_an_analytic_snell_trace():
+    radius = 5.0
+    sphere = {"type": "sphere", "radius": radius, "bsdf": {"type": "dielectric", "int_ior": N, "ext_ior": 1.0},
+              "interior": {"type": "stress", "stress_optic_coefficient": 1.0, "wavelength": 532.0, "model": "uniform"}}
+    scene = _scene(sphere)
+    heights = np.linspace(0.2, 4.8, 12)
+    rays = mi.Ray3f(mi.Point3f(mi.Float(heights), 0.0, 100.0), mi.Vector3f(0, 0, -1))
+    path = scene.integrator().trace_refracted(scene, rays)
+    i = np.arcsin(heights / radius)
+    t = np.arcsin(np.sin(i) / N)
+    inside = np.stack([-np.sin(i - t), 0 * i, -np.cos(i - t)])
+    entry = np.stack([heights, 0 * i, np.sqrt(radius ** 2 - heights ** 2)])
+    exit_point = entry + 2 * radius * np.cos(t) * inside
+    deviation = 2 * (i - t)
+    exit_direction = np.stack([-np.sin(deviation), 0 * i, -np.cos(deviation)])
+    np.testing.assert_allclose(np.array(path.exit_point), exit_point, atol=2e-4)
+    np.testing.assert_allclose(np.array(path.exit_direction), exit_direction, atol=2e-5)
+    np.testing.assert_allclose(np.array(path.length), 2 * radius * np.cos(t), rtol=1e-5)
+
+
+def test_total_internal_reflection_is_followed_without_nan_and_within_max_crossings():
+    """Light entering a cube's top face meets a side face beyond the critical angle: a cube turned 45 degrees
+    under the camera traps part of its rays by total reflection."""
+    cube = {**_slab(N, 45.0, stress=STRESS, half_thickness=3.0, half_width=3.0)}
+    for limit in (3, 64):
+        scene = _scene(cube, size=32)
+        scene.integrator().max_crossings = limit
+        channels = _channels(scene)
+        for name, image in channels.items():
+            assert np.all(np.isfinite(image)), name
+        assert 0.0 <= channels["Y"].min() and channels["Y"].max() <= 1.0 + 1e-5
+        rays = mi.Ray3f(mi.Point3f(mi.Float(np.linspace(-3.9, 3.9, 40)), mi.Float(np.linspace(-3.9, 3.9, 40)), 100.0),
+                        mi.Vector3f(0, 0, -1))
+        path = scene.integrator().trace_refracted(scene, rays)
+        assert np.array(path.interfaces).max() <= limit
+    # Some rays meet more than the two faces they cross: they were totally reflected on the way.
+    assert np.array(path.interfaces).max() >= 3
+
+
+def test_total_reflection_keeps_the_light_whole():
+    """A ray totally reflected inside carries its power on: with the reflections' phases, the path's Jones
+    matrix keeps the product of the two transmissions as its only loss."""
+    scene = _scene(_slab(N, 45.0, stress={}, half_thickness=3.0, half_width=3.0), size=32)
+    rays = mi.Ray3f(mi.Point3f(0.0, mi.Float(np.linspace(-3.9, 3.9, 200)), 100.0), mi.Vector3f(0, 0, -1))
+    path = scene.integrator().trace_refracted(scene, rays)
+    reflected = np.array(path.interfaces) == 3
+    assert reflected.any()
+    matrices = np.array(path.jones[0]).T, np.array(path.jones[1]).T
+    for a, b in zip(matrices[0][reflected], matrices[1][reflected]):
+        singular = np.linalg.svd(jones.to_matrix((tuple(a), tuple(b))), compute_uv=False)
+        cos_i = math.cos(math.radians(45.0))
+        _, _, tau_s, tau_p = interface.flux_coefficients(cos_i, 1.0, N)
+        np.testing.assert_allclose(sorted(singular), sorted([abs(tau_s) ** 2, abs(tau_p) ** 2]), rtol=1e-4)
+
+
+def test_an_index_matched_bath_leaves_only_its_own_walls():
+    """A specimen of n = 1.5 in a liquid of n = 1.5: its surfaces vanish, the tank's flat walls at normal
+    incidence pass (4 n / (1 + n)^2)^2 of the straight render."""
+    bath = {"type": "cube", "to_world": T().scale([20, 20, 8]),
+            "bsdf": {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}}
+    matched = _channels(_scene(_slab(1.5, 20.0, ext_ior=1.5), bath=bath))
+    straight = _channels(_scene(_slab(None, 20.0)))
+    walls = (4 * 1.5 / 2.5 ** 2) ** 2
+    for name in list(MEASUREMENTS) + ["Y"]:
+        np.testing.assert_allclose(matched[name], walls * straight[name], rtol=2e-5, atol=1e-6, err_msg=name)
+    np.testing.assert_allclose(matched["path.length"], straight["path.length"], rtol=1e-5)
+
+
+def test_bad_interfaces_are_refused_with_one_line():
+    with pytest.raises(SceneSetupError, match="int_ior / ext_ior = 0.0; give both indices as positive"):
+        _channels(_scene(_slab(0.0)))
+    rough = {**_slab(), "bsdf": {"type": "roughdielectric", "int_ior": N}}
+    with pytest.raises(SceneSetupError, match="RoughDielectric: a rough dielectric scatters"):
+        _channels(_scene(rough))
+    sheet = {"type": "rectangle", "to_world": T().scale(20), "bsdf": {"type": "dielectric", "int_ior": N}}
+    with pytest.raises(SceneSetupError, match="bath 'sheet' is not a closed mesh"):
+        _channels(_scene(_slab(N), sheet=sheet))
+    cutting = {"type": "cube", "to_world": T().translate([10, 0, 0]) @ T().scale([5, 20, 20]),
+               "bsdf": {"type": "dielectric", "int_ior": 1.4}}
+    with pytest.raises(SceneSetupError, match="the surface of bath 'cutting' cuts specimen 'specimen'"):
+        _channels(_scene(_slab(N), cutting=cutting))
+
+
+def test_gradients_through_refracting_surfaces_are_refused_not_traced_straight():
+    scene = _scene(_slab(N))
+    rays = mi.Ray3f(mi.Point3f(0, 0, 100), mi.Vector3f(0, 0, -1))
+    with pytest.raises(SceneSetupError, match="reconstruction through refracting surfaces is not available yet"):
+        scene.integrator().trace_rays(scene, rays, mi.Vector3f(1, 0, 0))
+
