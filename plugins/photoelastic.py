@@ -93,8 +93,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     the bent path without twist; total internal reflection reflects the ray
     with its phases (docs/physics.md section 8, ``mi_nest/integration/
     refraction.py``). The Jones channels then hold the specimens' own product
-    and the intensities the whole path's. Renders only: gradients through
-    refracting surfaces are not available yet.
+    and the intensities the whole path's. Ray batches (``trace_rays``) then
+    return the path's matrix as 8 numbers, and ``backpropagate_rays`` replays
+    it (``product`` and ``magnus4``); ``render_backward`` is not available
+    through refracting surfaces.
 
     The film receives the intensity of the scene's polariscope as its main
     channel (``Y``) and, as named channels, the Jones product
@@ -268,9 +270,13 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         its path length (mm) inside specimens.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
-            guards.refuse_refraction(prepared.setup, "reconstruction")
             seeds = _ray_seeds(seed, dr.width(rays.o))
             method = prepared.decision.method
+            if prepared.setup.refracting:
+                path = self.walk_refracted(scene, rays, prepared, mi.Bool(True), seeds)
+                state = tuple(path.jones[0]) + tuple(path.jones[1])
+                dr.eval(state, path.blocked, path.length)
+                return state, path.blocked, path.length
             (state, _), blocked, length = self.walk(scene, rays, prepared, mi.Bool(True), seeds,
                                                     method.trace_start(), method.trace)
             dr.eval(state, blocked, length)
@@ -286,8 +292,16 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         grow with the number of steps.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
-            guards.refuse_refraction(prepared.setup, "reconstruction")
             prepared.decision.method.require_adjoint()
+            if prepared.setup.refracting:
+                guards.require_product_through_refraction(prepared.decision.method)
+                total, grad = (tuple(mi.Float(x) for x in values) for values in (state, state_grad))
+                dr.make_opaque(total, grad)
+                refraction.replay(scene, rays, prepared.setup, prepared.decision.method, prepared.decision.step_size,
+                                  _ray_seeds(seed, dr.width(rays.o)), mi.Bool(True), self.max_crossings, RaySegment,
+                                  jones.Biquaternion((total[:4], total[4:])),
+                                  jones.Biquaternion((grad[:4], grad[4:])))
+                return
             # Unevaluated adjoints carry the loss's constants (1 / batch size...) into the kernel,
             # which would then be rebuilt whenever they change.
             state, state_grad = tuple(mi.Float(x) for x in state), tuple(mi.Float(x) for x in state_grad)
@@ -295,8 +309,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             seeds = _ray_seeds(seed, dr.width(rays.o))
             self.replay(scene, rays, prepared, mi.Bool(True), seeds, state, state_grad)
 
-    def jones(self, state: tuple, blocked: mi.Bool) -> su2.Quaternion:
-        """The Jones quaternion from a traced state (zero where blocked)."""
+    def jones(self, state: tuple, blocked: mi.Bool) -> su2.Quaternion | jones.Biquaternion:
+        """The Jones matrix from a traced state (zero where blocked): a quaternion, or where surfaces refract
+        (an 8-tuple state) the path's general Jones matrix."""
+        if len(state) == 8:
+            return jones.Biquaternion((tuple(dr.select(blocked, 0.0, x) for x in state[:4]),
+                                       tuple(dr.select(blocked, 0.0, x) for x in state[4:])))
         return su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in self.decision.method.finish(state)))
 
     def _render_pixel_sums(self, scene, sensor, seed, spp):

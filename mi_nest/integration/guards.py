@@ -81,9 +81,16 @@ def check_aliasing(order: np.ndarray, length: np.ndarray) -> aliasing.FringeAlia
 
 
 def refuse_refraction(setup, what: str) -> None:
-    """Gradients and training rays follow straight paths only: a refracting scene is refused, not traced
-    wrongly."""
+    """What cannot follow refracted paths yet is refused, not traced straight by mistake."""
     if setup.refracting:
-        raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet (renders "
-                              "are); drop the specimens' and baths' dielectric BSDFs for index-matched straight "
-                              "rays")
+        raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet (renders and "
+                              "ray batches are); drop the specimens' and baths' dielectric BSDFs for index-matched "
+                              "straight rays")
+
+
+def require_product_through_refraction(method) -> None:
+    """Through refracting surfaces each segment's product is differentiated inside the path's matrix: the
+    products (``product``, ``magnus4``) have that adjoint, the linear model's summed generator does not."""
+    if method.name not in ("product", "magnus4"):
+        raise SceneSetupError(f"photoelastic: gradients through refracting surfaces need 'product' or 'magnus4', "
+                              f"not '{method.name}'")

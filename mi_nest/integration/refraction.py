@@ -87,13 +87,70 @@ class RefractedPath(NamedTuple):
     interfaces: mi.UInt32       # interfaces crossed or reflected at
 
 
+class Hit(NamedTuple):
+    """One crossing of the walk: the segment marched up to it and what the surface there does."""
+    marched: mi.Bool            # the segment before it ran inside a specimen
+    steps: mi.UInt32
+    h: mi.Float
+    chord: mi.Float
+    blocked: mi.Bool            # an opaque shape
+    bend: mi.Bool               # a dielectric surface
+    matrix: jones.Biquaternion  # its Jones matrix in the carried frame (the identity where it does not bend)
+    direction: mi.Vector3f      # the traced ray's direction after it
+    u: mi.Vector3f              # and its carried frame
+    v: mi.Vector3f
+    medium: mi.UInt32           # the specimen medium after it (0 outside)
+    launch: mi.Point3f          # where the next query starts
+
+
+def _query(scene, launch, d, reach, ray, active):
+    return scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths), ray_flags=mi.RayFlags.Minimal,
+                               coherent=False, active=active)
+
+
+def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u: mi.Vector3f, v: mi.Vector3f,
+              medium: mi.UInt32, setup: SceneSetup, step_size: float, active: mi.Bool) -> Hit:
+    """The geometry and optics of one crossing, the same in the primal walk and its replay."""
+    hit = active & si.is_valid()
+    shape = dr.reinterpret_array(mi.UInt32, si.shape)
+    hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
+    ratio = dr.gather(mi.Float, setup.ratio_of_shape, shape, hit)
+    bend = hit & (ratio > 0)
+    entering = dr.dot(si.n, d) < 0
+    chord = dr.norm(si.p - origin)
+    marched = hit & (medium != 0)
+    steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
+    # The traced ray goes from index n to n * step; the light the other way.
+    step = dr.select(entering, ratio, dr.rcp(dr.maximum(ratio, 1e-30)))
+    turned, cos_traced, reflected = interface.refract(d, si.n, mi.Float(1.0), step)
+    turned = mi.Vector3f(turned)
+    s_axis = mi.Vector3f(interface.s_axis(d, si.n, u))
+    tau_s, tau_p = interface.transmitted_flux_amplitudes(dr.abs(dr.dot(turned, si.n)),
+                                                         dr.rcp(dr.maximum(step, 1e-30)))
+    phi_s, phi_p = interface.reflection_phases(cos_traced, step)
+    x = (dr.select(reflected, dr.cos(phi_s), tau_s), dr.select(reflected, dr.sin(phi_s), 0.0))
+    y = (dr.select(reflected, dr.cos(phi_p), tau_p), dr.select(reflected, dr.sin(phi_p), 0.0))
+    matrix = _where_biquaternion(bend, jones.diattenuator(x, y, interface.s_angle(u, v, s_axis)))
+    new_d = dr.select(bend, turned, d)
+    return Hit(marched, steps, chord / mi.Float(dr.maximum(steps, 1)), chord, hit & (hit_medium == 0) & ~bend, bend,
+               matrix, new_d,
+               dr.select(bend, mi.Vector3f(interface.transported(u, d, turned, s_axis)), u),
+               dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v),
+               dr.select(hit & (hit_medium != 0), dr.select(entering, hit_medium, 0), medium),
+               occupancy.past_surface(si, new_d))
+
+
+def _start(ray, setup):
+    d = mi.Vector3f(ray.d)
+    u, v = projection.transverse_basis(-d, setup.right)
+    return d, mi.Vector3f(u), mi.Vector3f(v)
+
+
 @dr.syntax
 def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
           active: mi.Bool, max_crossings: int, make_segment) -> RefractedPath:
     """Follow each camera ray through every interface and specimen; see the module's docstring."""
-    d = mi.Vector3f(ray.d)
-    u, v = projection.transverse_basis(-d, setup.right)
-    u, v = mi.Vector3f(u), mi.Vector3f(v)
+    d, u, v = _start(ray, setup)
     origin = mi.Point3f(ray.o)
     launch = mi.Point3f(ray.o)
     reach = mi.Float(ray.maxt)
@@ -108,55 +165,24 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     active = mi.Bool(active)
 
     while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment]):
-        si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
-                                 ray_flags=mi.RayFlags.Minimal, coherent=False, active=active)
-        hit = si.is_valid()
-        shape = dr.reinterpret_array(mi.UInt32, si.shape)
-        hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
-        ratio = dr.gather(mi.Float, setup.ratio_of_shape, shape, hit)
-        is_interface = hit & (ratio > 0)
-        entering = dr.dot(si.n, d) < 0
-
-        chord = dr.norm(si.p - origin)
-        marched = active & hit & (medium != 0)
-        steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
-        h = chord / mi.Float(dr.maximum(steps, 1))
-        coefficients = setup.frame_coefficients(u, v)
-        segment_seed = mi.sample_tea_32(seeds, crossings)[0]
-        state, fringe = method.trace((state, fringe), make_segment(steps, h, medium, origin, d, coefficients,
-                                                                   segment_seed), setup)
-        length += dr.select(marched, chord, 0.0)
-        blocked |= active & hit & (hit_medium == 0) & ~is_interface
-
+        si = _query(scene, launch, d, reach, ray, active)
+        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
+        segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
+                               mi.sample_tea_32(seeds, crossings)[0])
+        state, fringe = method.trace((state, fringe), segment, setup)
+        length += dr.select(crossing.marched, crossing.chord, 0.0)
+        blocked |= crossing.blocked
         # At an interface, the stress product since the last one joins the path's matrix, then the interface.
-        bend = active & is_interface
-        segment_jones = _where(bend, method.finish(state), su2.identity(mi.Float(0)))
+        segment_jones = _where(crossing.bend, method.finish(state), su2.identity(mi.Float(0)))
         stress = su2.multiply(stress, segment_jones)
-        total = jones.multiply(total, jones.from_quaternion(segment_jones))
-        state = _where(bend, method.trace_start()[0], state)
-        # The traced ray goes from index n to n * step; the light the other way.
-        step = dr.select(entering, ratio, dr.rcp(dr.maximum(ratio, 1e-30)))
-        turned, cos_traced, reflected = interface.refract(d, si.n, mi.Float(1.0), step)
-        turned = mi.Vector3f(turned)
-        s_axis = mi.Vector3f(interface.s_axis(d, si.n, u))
-        angle = interface.s_angle(u, v, s_axis)
-        cos_light = dr.abs(dr.dot(turned, si.n))
-        tau_s, tau_p = interface.transmitted_flux_amplitudes(cos_light, dr.rcp(dr.maximum(step, 1e-30)))
-        phi_s, phi_p = interface.reflection_phases(cos_traced, step)
-        x = (dr.select(reflected, dr.cos(phi_s), tau_s), dr.select(reflected, dr.sin(phi_s), 0.0))
-        y = (dr.select(reflected, dr.cos(phi_p), tau_p), dr.select(reflected, dr.sin(phi_p), 0.0))
-        total = jones.multiply(total, _where_biquaternion(bend, jones.diattenuator(x, y, angle)))
-        u = dr.select(bend, mi.Vector3f(interface.transported(u, d, turned, s_axis)), u)
-        v = dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v)
-        new_d = dr.select(bend, turned, d)
-        interfaces += dr.select(bend, 1, 0)
-
-        # A specimen's own surface: in or out of its medium (specimens are not nested in one another).
-        medium = dr.select(active & hit & (hit_medium != 0), dr.select(entering, hit_medium, 0), medium)
-        origin = dr.select(active & hit, si.p, origin)
-        launch = dr.select(active & hit, occupancy.past_surface(si, new_d), launch)
-        d = new_d
-        reach = dr.select(active & hit, dr.inf, reach)
+        total = jones.multiply(jones.multiply(total, jones.from_quaternion(segment_jones)), crossing.matrix)
+        state = _where(crossing.bend, method.trace_start()[0], state)
+        interfaces += dr.select(crossing.bend, 1, 0)
+        hit = active & si.is_valid()
+        d, u, v, medium = crossing.direction, crossing.u, crossing.v, crossing.medium
+        origin = dr.select(hit, si.p, origin)
+        launch = dr.select(hit, crossing.launch, launch)
+        reach = dr.select(hit, dr.inf, reach)
         crossings += 1
         active &= hit & ~blocked & (crossings < max_crossings)
 
@@ -165,6 +191,47 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     total = jones.multiply(total, jones.from_quaternion(segment_jones))
     return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces)
 
+
+@dr.syntax
+def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
+           active: mi.Bool, max_crossings: int, make_segment, total: jones.Biquaternion,
+           grad: jones.Biquaternion) -> None:
+    """The adjoint of :func:`trace`: back-propagate ``grad`` (the adjoint of the path's Jones matrix ``total``)
+    into every segment's field lookups.
+
+    The path's matrix is ``M = L Q R``: ``L`` the part on the camera side of a
+    segment (grown as the replay walks), ``Q`` the segment's own product (marched
+    again, primal) and ``R = (L Q)^-1 M``. The segment's product receives the
+    adjoint of ``q`` in ``L q R`` and replays its steps as in a straight walk.
+    The interfaces are fixed (known geometry and indices): only the stress is
+    differentiated.
+    """
+    d, u, v = _start(ray, setup)
+    origin = mi.Point3f(ray.o)
+    launch = mi.Point3f(ray.o)
+    reach = mi.Float(ray.maxt)
+    medium = mi.UInt32(0)
+    before = _where_biquaternion(mi.Bool(False), jones.from_quaternion(su2.identity(mi.Float(0))))
+    crossings = mi.UInt32(0)
+    active = mi.Bool(active)
+
+    while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment, total, grad]):
+        si = _query(scene, launch, d, reach, ray, active)
+        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
+        segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
+                               mi.sample_tea_32(seeds, crossings)[0])
+        product, _ = method.march(segment, setup)
+        with_segment = jones.multiply(before, jones.from_quaternion(product))
+        after = jones.multiply(jones.inverse(with_segment), total)
+        method.replay(method.replay_start(product), jones.unitary_adjoint(before, after, grad), segment, setup)
+        before = jones.multiply(with_segment, crossing.matrix)
+        hit = active & si.is_valid()
+        d, u, v, medium = crossing.direction, crossing.u, crossing.v, crossing.medium
+        origin = dr.select(hit, si.p, origin)
+        launch = dr.select(hit, crossing.launch, launch)
+        reach = dr.select(hit, dr.inf, reach)
+        crossings += 1
+        active &= hit & ~crossing.blocked & (crossings < max_crossings)
 
 def _where(condition: mi.Bool, chosen: tuple, other: tuple) -> tuple:
     return tuple(dr.select(condition, a, b) for a, b in zip(chosen, other))

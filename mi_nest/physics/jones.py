@@ -103,3 +103,29 @@ def from_matrix(matrix: np.ndarray) -> Biquaternion:
     basis = [su2.to_matrix(tuple(float(i == k) for i in range(4))) for k in range(4)]
     coefficients = [np.trace(b.conj().T @ matrix) / 2.0 for b in basis]
     return Biquaternion((tuple(float(c.real) for c in coefficients), tuple(float(c.imag) for c in coefficients)))
+
+
+def inverse(m: Biquaternion) -> Biquaternion:
+    """``m^-1``: the conjugate quaternion over the determinant ``sum c_k^2`` (complex, a polynomial identity of the
+    basis). Finite wherever ``m`` is invertible: every interface below grazing incidence, every stress step."""
+    a, b = m
+    det_re = sum(x * x for x in a) - sum(y * y for y in b)
+    det_im = 2.0 * sum(x * y for x, y in zip(a, b))
+    norm = det_re * det_re + det_im * det_im
+    conj_a, conj_b = su2.conjugate(a), su2.conjugate(b)
+    # (conj_a + i conj_b) (det_re - i det_im) / |det|^2
+    real = tuple((x * det_re + y * det_im) / norm for x, y in zip(conj_a, conj_b))
+    imaginary = tuple((y * det_re - x * det_im) / norm for x, y in zip(conj_a, conj_b))
+    return Biquaternion((real, imaginary))
+
+
+def unitary_adjoint(before: Biquaternion, after: Biquaternion, grad: Biquaternion) -> su2.Quaternion:
+    """The adjoint of ``q`` in ``M = before q after`` (``q`` a real quaternion) from the adjoint ``grad`` of ``M``'s
+    real and imaginary quaternion coordinates: ``d/dq_k (grad . M)``, linear in ``q``'s coordinates."""
+    like = before[0][0] * 0.0
+    adjoint = []
+    for k in range(4):
+        basis = tuple(like + float(i == k) for i in range(4))
+        moved = multiply(multiply(before, from_quaternion(basis)), after)
+        adjoint.append(sum(g * x for g, x in zip(grad[0], moved[0])) + sum(g * x for g, x in zip(grad[1], moved[1])))
+    return su2.Quaternion(tuple(adjoint))
