@@ -53,10 +53,19 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
     integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True})
     field = _field(kind)
     rays, weights = _batch()
-    right = mi.Vector3f(1, 0, 0)
 
     def loss(q):
         return sum(dr.sum(w * x) for w, x in zip(weights, q))
+
+    gradients, checked, _ = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=3)
+    assert checked >= 3
+    assert max(np.abs(g).max() for g in gradients.values()) > 1e-3
+
+
+def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest):
+    """The replayed gradient of ``loss(jones)`` over ``rays`` against central differences: the gradients, how
+    many entries were checked, and the traced state."""
+    right = mi.Vector3f(1, 0, 0)
 
     def value(parameters):
         field.assign(parameters)
@@ -77,11 +86,15 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
         state_grad = dr.grad(leaf)
     integrator.backpropagate_rays(loaded, rays, right, state, state_grad, seed=5, field=field)
     gradients = {name: np.array(dr.grad(v)).ravel() for name, v in variables.items()}
+    return gradients, _matches_finite_differences(value, base, gradients, largest), state
 
+
+def _matches_finite_differences(value, base, gradients, largest):
+    """Each parameter's ``largest`` gradient entries against central differences of ``value``; the count."""
     checked = 0
     for name, gradient in gradients.items():
         flat = np.array(base[name]).ravel()
-        for index in np.argsort(-np.abs(gradient))[:3]:
+        for index in np.argsort(-np.abs(gradient))[:largest]:
             step = 1e-2 * max(1.0, abs(flat[index]))
             shifted = []
             for sign in (1, -1):
@@ -89,9 +102,10 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
                 moved[index] += sign * step
                 shifted.append(value({**base, name: type(base[name])(moved.reshape(np.shape(base[name])))}))
             finite_difference = (shifted[0] - shifted[1]) / (2 * step)
-            assert float(gradient[index]) == pytest.approx(finite_difference, rel=0.03, abs=2e-3 * float(np.abs(gradient).max()))
+            assert float(gradient[index]) == pytest.approx(finite_difference, rel=0.03,
+                                                           abs=2e-3 * float(np.abs(gradient).max()))
             checked += 1
-    assert checked >= 3 and max(np.abs(g).max() for g in gradients.values()) > 1e-3
+    return checked
 
 
 @pytest.mark.filterwarnings("ignore:photoelastic. fringes denser")
@@ -157,44 +171,14 @@ def test_replayed_gradient_through_refracting_surfaces_matches_finite_difference
     integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True})
     field = _field("grid")
     rays, _ = _batch()
-    right = mi.Vector3f(1, 0, 0)
     weights = [mi.Float(w) for w in np.random.default_rng(11).normal(size=(16, RAYS)).astype(np.float32)]
 
     def loss(matrix):
         return sum(dr.sum(w * x) for w, x in zip(weights, intensities(matrix)))
 
-    def value(parameters):
-        field.assign(parameters)
-        with dr.suspend_grad():
-            state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
-            return float(loss(integrator.jones(state, blocked))[0])
-
-    base = {name: type(v)(np.array(v)) for name, v in field.parameters().items()}
-    variables = {name: type(v)(v) for name, v in base.items()}
-    for v in variables.values():
-        dr.enable_grad(v)
-    field.assign(variables)
-    state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
-    assert len(state) == 8
-    with dr.resume_grad():
-        leaf = tuple(mi.Float(x) for x in state)
-        dr.enable_grad(leaf)
-        dr.backward(loss(integrator.jones(leaf, blocked)))
-        state_grad = dr.grad(leaf)
-    integrator.backpropagate_rays(loaded, rays, right, state, state_grad, seed=5, field=field)
-    gradient = np.array(dr.grad(variables["grid"])).ravel()
-    flat = np.array(base["grid"]).ravel()
-    for index in np.argsort(-np.abs(gradient))[:6]:
-        step = 1e-2 * max(1.0, abs(flat[index]))
-        shifted = []
-        for sign in (1, -1):
-            moved = flat.copy()
-            moved[index] += sign * step
-            shifted.append(value({**base, "grid": type(base["grid"])(moved.reshape(np.shape(base["grid"])))}))
-        finite_difference = (shifted[0] - shifted[1]) / (2 * step)
-        assert float(gradient[index]) == pytest.approx(finite_difference, rel=0.03,
-                                                       abs=2e-3 * float(np.abs(gradient).max()))
-    assert np.abs(gradient).max() > 1e-3
+    gradients, checked, state = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
+    assert checked == 6 and len(state) == 8          # the path's general Jones matrix
+    assert np.abs(gradients["grid"]).max() > 1e-3
 
 
 def test_linear_gradients_through_refracting_surfaces_are_refused():

@@ -140,6 +140,14 @@ def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u
                occupancy.past_surface(si, new_d))
 
 
+def _advance(si, crossing, origin, launch, reach, active):
+    """The walk's state past a crossing: direction, frame, medium, segment origin, next query (and whether
+    anything was hit)."""
+    hit = active & si.is_valid()
+    return (crossing.direction, crossing.u, crossing.v, crossing.medium, dr.select(hit, si.p, origin),
+            dr.select(hit, crossing.launch, launch), dr.select(hit, dr.inf, reach), hit)
+
+
 def _start(ray, setup):
     d = mi.Vector3f(ray.d)
     u, v = projection.transverse_basis(-d, setup.right)
@@ -178,11 +186,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         total = jones.multiply(jones.multiply(total, jones.from_quaternion(segment_jones)), crossing.matrix)
         state = _where(crossing.bend, method.trace_start()[0], state)
         interfaces += dr.select(crossing.bend, 1, 0)
-        hit = active & si.is_valid()
-        d, u, v, medium = crossing.direction, crossing.u, crossing.v, crossing.medium
-        origin = dr.select(hit, si.p, origin)
-        launch = dr.select(hit, crossing.launch, launch)
-        reach = dr.select(hit, dr.inf, reach)
+        d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~blocked & (crossings < max_crossings)
 
@@ -225,11 +229,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         after = jones.multiply(jones.inverse(with_segment), total)
         method.replay(method.replay_start(product), jones.unitary_adjoint(before, after, grad), segment, setup)
         before = jones.multiply(with_segment, crossing.matrix)
-        hit = active & si.is_valid()
-        d, u, v, medium = crossing.direction, crossing.u, crossing.v, crossing.medium
-        origin = dr.select(hit, si.p, origin)
-        launch = dr.select(hit, crossing.launch, launch)
-        reach = dr.select(hit, dr.inf, reach)
+        d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~crossing.blocked & (crossings < max_crossings)
 
