@@ -221,3 +221,21 @@ def test_a_tilted_glass_block_matches_mitsubas_polarised_dielectric(tmp_path):
         without_fresnel = max(without_fresnel, abs(float(index_matched[name].mean()) - reference[name]))
     assert worst < 0.006, (worst, {name: (float(channels[name].mean()), reference[name]) for name in MEASUREMENTS})
     assert without_fresnel > 0.05
+
+
+def test_the_shipped_disk_takes_its_index_and_its_bath_from_defines():
+    """``-D ior=1.55`` refracts in air; ``-D ext_ior`` puts it in a bath, and a matched bath is the straight render
+    bit for bit (the same walk). Viewed along its axis the disk is a slab at normal incidence."""
+    defines = {"res": 32, "spp": 1, "load": 100.0, "contact_width": 4.0}
+    straight = _channels(mi_nest.load_scene("disk_compression", **defines))
+    in_air = _channels(mi_nest.load_scene("disk_compression", ior=N, **defines))
+    matched = _channels(mi_nest.load_scene("disk_compression", ior=N, ext_ior=N, **defines))
+    in_water = _channels(mi_nest.load_scene("disk_compression", ior=N, ext_ior=1.33, **defines))
+    inside = straight["path.length"] > 0
+    for name in ("Y", "pol.45.0.0", "pol.90.45.135"):
+        np.testing.assert_array_equal(matched[name], straight[name])
+        np.testing.assert_allclose(in_air[name][inside], (4 * N / (1 + N) ** 2) ** 2 * straight[name][inside],
+                                   rtol=1e-4, atol=1e-6)
+        ratio = N / 1.33
+        np.testing.assert_allclose(in_water[name][inside], (4 * ratio / (1 + ratio) ** 2) ** 2
+                                   * straight[name][inside], rtol=1e-4, atol=1e-6)
