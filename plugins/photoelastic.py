@@ -279,6 +279,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 return state, path.blocked, path.length
             (state, _), blocked, length = self.walk(scene, rays, prepared, mi.Bool(True), seeds,
                                                     method.trace_start(), method.trace)
+            blocked = self._past_panel(prepared.setup, rays, blocked)
             dr.eval(state, blocked, length)
             return state, blocked, length
 
@@ -309,6 +310,13 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             seeds = _ray_seeds(seed, dr.width(rays.o))
             self.replay(scene, rays, prepared, mi.Bool(True), seeds, state, state_grad)
 
+    @staticmethod
+    def _past_panel(setup: SceneSetup, ray: mi.Ray3f, blocked: mi.Bool) -> mi.Bool:
+        """A straight ray that misses a finite light panel brings no light either."""
+        if setup.panel is None:
+            return blocked
+        return blocked | setup.misses_panel(mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Vector3f(ray.d))
+
     def jones(self, state: tuple, blocked: mi.Bool) -> su2.Quaternion | jones.Biquaternion:
         """The Jones matrix from a traced state (zero where blocked): a quaternion, or where surfaces refract
         (an 8-tuple state) the path's general Jones matrix."""
@@ -338,6 +346,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if mode == dr.ADMode.Primal:
             (state, fringe), blocked, length = self.walk(scene, ray, prepared, active, seeds,
                                                          method.trace_start(), method.trace)
+            blocked = self._past_panel(prepared.setup, ray, blocked)
             if not method.unitary:
                 # Measure how far it drifted (read after the render).
                 prepared.norm_error = dr.max(dr.select(blocked, 0.0, dr.abs(su2.norm_squared(state) - 1.0)))

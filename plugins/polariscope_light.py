@@ -31,8 +31,21 @@ class PolariscopeLight(mi.Emitter):
        - Intensity behind LP1; intensities are normalised so that free space
          between parallel polarisers gives this value. (Default: 1)
 
-    A diffuse panel filling the whole background, as in a transmission
-    polariscope: every camera ray ends on it. Its optics are read by the
+     * - size
+       - |float|
+       - Side (mm) of a square panel facing the camera; leave out for a panel
+         filling the whole background. (Default: none)
+
+     * - distance
+       - |float|
+       - With ``size``: how far (mm) behind the specimens' centre the panel
+         lies, along the camera's axis. (Default: 100)
+
+    A diffuse panel, as in a transmission polariscope: by default it fills the
+    whole background and every camera ray ends on it. With ``size`` it is a
+    square of that side facing the camera ``distance`` behind the specimens:
+    a ray that refraction bends past its edge carries nothing (the dark rim of
+    a real part in air). Its optics are read by the
     ``photoelastic`` integrator, which rotates them with the camera (the whole
     polariscope turns around the fixed specimen).
 
@@ -53,10 +66,22 @@ class PolariscopeLight(mi.Emitter):
         self.radiance = float(props.get("radiance", 1.0))
         if not (math.isfinite(self.radiance) and self.radiance >= 0):
             raise ValueError(f"polariscope_light: 'radiance' must be finite and >= 0, got {self.radiance}")
+        self.size = _optional_length(props, "size", None)
+        self.distance = _optional_length(props, "distance", 100.0)
         self.m_flags = mi.EmitterFlags.Infinite
 
     def to_string(self) -> str:
-        return f"PolariscopeLight[polarizer={self.polarizer}, qwp={self.qwp}, radiance={self.radiance}]"
+        panel = "" if self.size is None else f", size={self.size}, distance={self.distance}"
+        return f"PolariscopeLight[polarizer={self.polarizer}, qwp={self.qwp}, radiance={self.radiance}{panel}]"
+
+
+def _optional_length(props, name, default):
+    if name not in props:
+        return default
+    value = float(props[name])
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"polariscope_light: '{name}' must be a positive length in mm, got {value}")
+    return value
 
 
 mi.register_emitter("polariscope_light", lambda props: PolariscopeLight(props))

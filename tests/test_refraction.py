@@ -239,3 +239,39 @@ def test_the_shipped_disk_takes_its_index_and_its_bath_from_defines():
         ratio = N / 1.33
         np.testing.assert_allclose(in_water[name][inside], (4 * ratio / (1 + ratio) ** 2) ** 2
                                    * straight[name][inside], rtol=1e-4, atol=1e-6)
+
+
+def test_rays_bent_past_a_finite_panel_bring_no_light():
+    """A glass ball is a lens: behind it, rays cross the axis and spread. A 100 mm distant panel catches only
+    those that land within its side, as an analytic Snell trace says; the others are dark (a real part's rim)."""
+    radius, distance = 5.0, 100.0
+    sphere = {"type": "sphere", "radius": radius, "bsdf": {"type": "dielectric", "int_ior": N, "ext_ior": 1.0},
+              "interior": {"type": "stress", "stress_optic_coefficient": 1.0, "wavelength": 532.0, "model": "uniform"}}
+    heights = np.linspace(0.2, 4.8, 24)
+    i = np.arcsin(heights / radius)
+    t = np.arcsin(np.sin(i) / N)
+    exit_x = heights - 2 * radius * np.cos(t) * np.sin(i - t)
+    exit_z = np.sqrt(radius ** 2 - heights ** 2) - 2 * radius * np.cos(t) * np.cos(i - t)
+    deviation = 2 * (i - t)
+    on_panel = exit_x - np.tan(deviation) * (exit_z + distance)
+    size = 2 * float(np.median(np.abs(on_panel)))
+    scene = _scene(sphere, light={"size": size, "distance": distance})
+    rays = mi.Ray3f(mi.Point3f(mi.Float(heights), 0.0, 100.0), mi.Vector3f(0, 0, -1))
+    path = scene.integrator().trace_refracted(scene, rays)
+    missed = np.abs(on_panel) > size / 2
+    assert 4 <= missed.sum() <= 20
+    np.testing.assert_array_equal(np.array(path.blocked), missed)
+    # In the image: the middle lit, the rim (nearly grazing rays, bent most) dark.
+    channels = _channels(scene)
+    assert channels["Y"][3:5, 3:5].min() > 0.5 and channels["Y"][0, 0] == 0
+    with pytest.raises(Exception, match="'size' must be a positive length in mm, got -1"):
+        _scene(sphere, light={"size": -1.0})
+
+
+def test_a_panel_larger_than_the_view_changes_nothing_and_a_small_one_darkens_straight_rays_too():
+    plain = _channels(_scene(_slab()))
+    large = _channels(_scene(_slab(), light={"size": 50.0}))
+    small = _channels(_scene(_slab(), light={"size": 4.0}))     # the view is 8 mm across
+    np.testing.assert_array_equal(large["Y"], plain["Y"])
+    np.testing.assert_array_equal(small["Y"][2:6, 2:6], plain["Y"][2:6, 2:6])
+    assert np.all(small["Y"][0] == 0) and np.all(small["Y"][:, 7] == 0)

@@ -80,7 +80,7 @@ class RefractedPath(NamedTuple):
     jones: jones.Biquaternion   # the whole path's Jones matrix, interfaces included (light order)
     stress: su2.Quaternion      # the product of the specimens' segments alone
     fringe: tuple               # summed (b, c) of the step generators (the fringe-order channel)
-    blocked: mi.Bool            # an opaque shape stops it
+    blocked: mi.Bool            # an opaque shape stops it, or it misses a finite light panel
     length: mi.Float            # mm inside specimens
     exit_point: mi.Point3f      # where it left the last interface
     exit_direction: mi.Vector3f  # and in which direction (traced from the camera)
@@ -193,6 +193,8 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     segment_jones = method.finish(state)
     stress = su2.multiply(stress, segment_jones)
     total = jones.multiply(total, jones.from_quaternion(segment_jones))
+    # Bent past a finite light panel's edge, it brings no light.
+    blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d))
     return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces)
 
 

@@ -91,6 +91,11 @@ class SceneSetup:
         output_qwp, analyzer = ((sensor.qwp, sensor.analyzer) if isinstance(sensor, polariscope.PolariscopeCamera)
                                 else (None, None))
         self.radiance = light.radiance
+        # A finite panel: (side, distance behind the specimens' centre, that centre, the camera's axis).
+        self.panel = None
+        if light.size is not None:
+            forward = None if sensor is None else dr.normalize(sensor.world_transform() @ mi.Vector3f(0, 0, 1))
+            self.panel = (light.size, light.distance, bounds.center(), forward)
         self.polariscope = Polariscope(polarizer=light.polarizer, input_qwp=light.qwp, output_qwp=output_qwp,
                                        analyzer=analyzer)
         if right is None:
@@ -112,6 +117,21 @@ class SceneSetup:
             rate = self.media[0].phase_rate
             alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
         return alpha, beta
+
+    def misses_panel(self, p: mi.Point3f, d: mi.Vector3f, axis: mi.Vector3f) -> mi.Bool:
+        """Whether the line ``p + t d`` (t > 0), traced away from the camera, misses a finite light panel; the
+        panel faces the camera's axis (``axis``: each ray's first direction where no camera is given)."""
+        if self.panel is None:
+            return mi.Bool(False)
+        size, distance, centre, forward = self.panel
+        forward = axis if forward is None else forward
+        along = dr.dot(d, forward)
+        t = (distance - dr.dot(p - mi.Point3f(centre), forward)) / dr.maximum(along, 1e-12)
+        offset = p + t * d - (mi.Point3f(centre) + distance * forward)
+        up = dr.normalize(dr.cross(forward, self.right))
+        across = dr.normalize(dr.cross(up, forward))
+        inside = (dr.abs(dr.dot(offset, across)) <= 0.5 * size) & (dr.abs(dr.dot(offset, up)) <= 0.5 * size)
+        return ~((along > 0) & (t > 0) & inside)
 
     def frame_coefficients(self, u: mi.Vector3f, v: mi.Vector3f) -> tuple[tuple, tuple]:
         """:meth:`projection_coefficients` for a ray whose transverse frame ``(u, v)`` is carried along a bent
