@@ -75,7 +75,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
      * - max_crossings
        - |int|
        - Most surface crossings followed per ray; a guard against broken meshes.
-         (Default: 64)
+         Where surfaces refract, a ray that would cross more (trapped by total
+         internal reflection) brings no light. (Default: 64)
 
     Renders integrated photoelasticity (docs/physics.md): for every camera ray it
     follows the light from the ``polariscope_light`` panel to the camera through

@@ -122,21 +122,29 @@ def test_a_glass_sphere_bends_rays_as_an_analytic_snell_trace():
 
 def test_total_internal_reflection_is_followed_without_nan_and_within_max_crossings():
     """Light entering a cube's top face meets a side face beyond the critical angle: a cube turned 45 degrees
-    under the camera traps part of its rays by total reflection."""
+    under the camera traps part of its rays by total reflection. A ray that would cross more surfaces than
+    ``max_crossings`` never reached the light: it is dark, not half-traced."""
     cube = {**_slab(N, 45.0, stress=STRESS, half_thickness=3.0, half_width=3.0)}
-    for limit in (3, 64):
+    rays = mi.Ray3f(mi.Point3f(mi.Float(np.linspace(-3.9, 3.9, 40)), mi.Float(np.linspace(-3.9, 3.9, 40)), 100.0),
+                    mi.Vector3f(0, 0, -1))
+    paths = {}
+    for limit in (2, 64):
         scene = _scene(cube, size=32)
         scene.integrator().max_crossings = limit
         channels = _channels(scene)
         for name, image in channels.items():
             assert np.all(np.isfinite(image)), name
         assert 0.0 <= channels["Y"].min() and channels["Y"].max() <= 1.0 + 1e-5
-        rays = mi.Ray3f(mi.Point3f(mi.Float(np.linspace(-3.9, 3.9, 40)), mi.Float(np.linspace(-3.9, 3.9, 40)), 100.0),
-                        mi.Vector3f(0, 0, -1))
-        path = scene.integrator().trace_refracted(scene, rays)
-        assert np.array(path.interfaces).max() <= limit
+        paths[limit] = scene.integrator().trace_refracted(scene, rays)
+        assert np.array(paths[limit].interfaces).max() <= limit
+    crossed = np.array(paths[64].interfaces)
     # Some rays meet more than the two faces they cross: they were totally reflected on the way.
-    assert np.array(path.interfaces).max() >= 3
+    assert crossed.max() >= 3
+    np.testing.assert_array_equal(np.array(paths[2].blocked)[crossed > 2], True)
+    within = (crossed <= 2) & ~np.array(paths[64].blocked)
+    assert within.any()
+    np.testing.assert_allclose(np.array(paths[2].jones[0])[:, within], np.array(paths[64].jones[0])[:, within],
+                               atol=1e-6)
 
 
 def test_total_reflection_keeps_the_light_whole():
@@ -275,3 +283,37 @@ def test_a_panel_larger_than_the_view_changes_nothing_and_a_small_one_darkens_st
     np.testing.assert_array_equal(large["Y"], plain["Y"])
     np.testing.assert_array_equal(small["Y"][2:6, 2:6], plain["Y"][2:6, 2:6])
     assert np.all(small["Y"][0] == 0) and np.all(small["Y"][:, 7] == 0)
+
+
+@pytest.mark.parametrize("tilt", [25.0, 50.0])
+def test_a_stressed_slab_at_oblique_incidence_is_fresnel_times_the_retarder_of_the_refracted_chord(tilt):
+    """Written out by hand: tilted about x, s is x at both faces; inside, the light runs along the refracted
+    direction for t / cos(theta_t), its frame (x, the carried v); the stress seen is projected on that frame.
+    M = diag(tau_s, tau_p) exp(-i k L [[p, q], [q, -p]]) diag(tau_s, tau_p) in (u = x, v)."""
+    from scipy.linalg import expm
+    stress = {"xx": 3.0, "yy": -1.0, "zz": 0.5, "yz": 1.2, "zx": -0.7, "xy": 0.8}
+    channels = _channels(_scene(_slab(N, tilt, stress=stress, half_width=30.0)))
+    i = math.radians(tilt)
+    t = math.asin(math.sin(i) / N)
+    # The slab's normal is z turned by the tilt about x; the camera ray runs along -z.
+    normal = np.array([0.0, -math.sin(i), math.cos(i)])
+    inside = -(math.cos(t) * normal) + math.sin(t) * np.array([0.0, math.cos(i), math.sin(i)]) * \
+        np.sign(np.dot([0.0, 0.0, -1.0], [0.0, math.cos(i), math.sin(i)]))
+    inside /= np.linalg.norm(inside)
+    assert np.degrees(np.arccos(-np.dot(inside, normal))) == pytest.approx(math.degrees(t), abs=1e-9)
+    k = -inside                                            # the light's direction inside
+    u = np.array([1.0, 0.0, 0.0])
+    v = np.cross(k, u)
+    matrix = np.array([[stress["xx"], stress["xy"], stress["zx"]], [stress["xy"], stress["yy"], stress["yz"]],
+                       [stress["zx"], stress["yz"], stress["zz"]]])
+    p = u @ matrix @ u - v @ matrix @ v
+    q = 2 * u @ matrix @ v
+    length = 4.0 / math.cos(t)
+    rate = math.pi * 1.0 / 532.0                           # pi C / lambda: rad per MPa mm (Brewster, nm)
+    retarder = expm(-1j * rate * length * np.array([[p, q], [q, -p]]))
+    _, _, tau_s, tau_p = interface.flux_coefficients(math.cos(i), 1.0, N)
+    fresnel = np.diag([complex(tau_s), complex(tau_p)])
+    total = fresnel @ retarder @ fresnel
+    for name, scope in MEASUREMENTS.items():
+        expected = float(np.sum(np.abs(scope.matrix(total)) ** 2))
+        assert float(channels[name].mean()) == pytest.approx(expected, abs=2e-4), name

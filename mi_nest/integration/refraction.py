@@ -174,6 +174,10 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
 
     while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment]):
         si = _query(scene, launch, d, reach, ray, active)
+        # One more surface than the limit allows (trapped by total reflection): it never reaches the light.
+        trapped = active & si.is_valid() & (crossings >= max_crossings)
+        blocked |= trapped
+        active &= ~trapped
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
@@ -188,7 +192,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         interfaces += dr.select(crossing.bend, 1, 0)
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
-        active &= hit & ~blocked & (crossings < max_crossings)
+        active &= hit & ~blocked
 
     segment_jones = method.finish(state)
     stress = su2.multiply(stress, segment_jones)
@@ -223,6 +227,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
 
     while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment, total, grad]):
         si = _query(scene, launch, d, reach, ray, active)
+        active &= ~(si.is_valid() & (crossings >= max_crossings))
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
@@ -233,7 +238,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         before = jones.multiply(with_segment, crossing.matrix)
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
-        active &= hit & ~crossing.blocked & (crossings < max_crossings)
+        active &= hit & ~crossing.blocked
 
 def _where(condition: mi.Bool, chosen: tuple, other: tuple) -> tuple:
     return tuple(dr.select(condition, a, b) for a, b in zip(chosen, other))
