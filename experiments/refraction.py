@@ -66,7 +66,7 @@ def main():
 
     timing = [render_cost(name, SCENES[name], 256) for name in args.scenes]
     common.write_table(timing, args.output / "refraction_render.csv")
-    rows, results = [], []
+    rows = []
     for name in args.scenes:
         for surrounding in args.surroundings:
             indices = {"ior": PART, "ext_ior": SURROUNDINGS[surrounding]}
@@ -75,19 +75,38 @@ def main():
             for model, model_defines in (("straight", {**SCENES[name], "ior": 1.0, "ext_ior": 1.0}),
                                          ("refraction-aware", defines)):
                 label = f"{name} {surrounding} {model}"
-                row, result = common.reconstruct(name, data, args.output, label.replace(" ", "_"), args.minutes,
+                row, _ = common.reconstruct(name, data, args.output, label.replace(" ", "_"), args.minutes,
                                                  args.res, model_defines, iterations=args.iterations,
                                                  resolution=args.resolution, regulariser=REGULARISED,
                                                  track_error_every=500)
                 rows.append({"scene": name, "surrounding": surrounding, "n_ratio": round(PART / indices["ext_ior"], 4),
                              "model": model, "simulate_s": round(simulated, 1),
                              "iterations_per_s": round(row["iterations"] / row["optimise_s"], 1), **row})
-                results.append((label, result))
             common.write_table(rows, args.output / "refraction.csv")
-    common.plot_histories(results, args.output / "refraction.png",
-                          f"n = {PART} part: straight rays against refraction-aware, "
-                          f"{args.rotations}x{args.rotations} rotations at {args.res}x{args.res}",
-                          key="deviatoric_error", ylabel="relative deviatoric stress error")
+    plot(rows, args.output / "refraction.png", f"{args.rotations}x{args.rotations} rotations at {args.res}x{args.res}, "
+                                                  f"{args.iterations} iterations")
+
+
+def plot(rows, path, subtitle):
+    """Per scene, the final error of each model against the liquid around the part."""
+    plt = common.pyplot()
+    scenes = list(dict.fromkeys(row["scene"] for row in rows))
+    figure, axes = plt.subplots(1, len(scenes), figsize=(5.5 * len(scenes), 4), squeeze=False)
+    for axis, name in zip(axes[0], scenes):
+        surroundings = list(dict.fromkeys(row["surrounding"] for row in rows if row["scene"] == name))
+        x = np.arange(len(surroundings))
+        for offset, model in ((-0.2, "straight"), (0.2, "refraction-aware")):
+            errors = [100 * float(next(r["deviatoric_error"] for r in rows if r["scene"] == name
+                                       and r["surrounding"] == s and r["model"] == model)) for s in surroundings]
+            bars = axis.bar(x + offset, errors, width=0.4, label=model)
+            axis.bar_label(bars, fmt="%.0f", fontsize=7)
+        axis.set_xticks(x, surroundings, fontsize=8)
+        axis.set(ylabel="relative deviatoric stress error (%)", title=f"{name}, part n = {PART}")
+        axis.legend(fontsize=8)
+    figure.suptitle(f"straight rays against refraction-aware ({subtitle})", fontsize=10)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
