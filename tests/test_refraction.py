@@ -317,3 +317,73 @@ def test_a_stressed_slab_at_oblique_incidence_is_fresnel_times_the_retarder_of_t
     for name, scope in MEASUREMENTS.items():
         expected = float(np.sum(np.abs(scope.matrix(total)) ** 2))
         assert float(channels[name].mean()) == pytest.approx(expected, abs=2e-4), name
+
+
+def _sphere_crossings(origin, direction, centre, radius):
+    """Entry and exit distances of a line through a sphere (NaN where it misses)."""
+    offset = origin - centre
+    b = offset @ direction
+    disc = b * b - (offset @ offset - radius ** 2)
+    root = math.sqrt(disc) if disc > 0 else float("nan")
+    return -b - root, -b + root
+
+
+def _trace_spheres(origin, direction, spheres):
+    """Light directions along a ray through glass spheres, by Snell's law written out (NumPy)."""
+    directions = [direction]
+    for centre, radius in spheres:
+        entry, _ = _sphere_crossings(origin, direction, centre, radius)
+        if not entry > 0:
+            return None
+        point = origin + entry * direction
+        inside, _, total = interface.refract(tuple(direction), tuple((point - centre) / radius), 1.0, N)
+        inside = np.array(inside, dtype=np.float64)
+        _, leave = _sphere_crossings(point, inside, centre, radius)
+        point = point + leave * inside
+        out, _, total = interface.refract(tuple(inside), tuple((point - centre) / radius), N, 1.0)
+        if total:
+            return None
+        origin, direction = point, np.array(out, dtype=np.float64)
+        directions += [inside, direction]
+    return directions
+
+
+def _solid_angle(directions):
+    """Signed solid angle of the spherical polygon through unit ``directions`` (fan from the first; Van
+    Oosterom and Strackee's formula per triangle)."""
+    a, total = directions[0], 0.0
+    for b, c in zip(directions[1:-1], directions[2:]):
+        total += 2 * math.atan2(a @ np.cross(b, c), 1 + a @ b + b @ c + c @ a)
+    return total
+
+
+def test_the_light_sheets_turn_by_the_geometric_rotation_of_a_path_that_leaves_its_plane():
+    """Two glass balls side by side bend a ray in two different planes. Carried without twist, its frame comes
+    back turned from the straight one by the solid angle its directions enclose (Rytov's rotation, Berry's
+    phase), computed here from a hand-written Snell trace; a path in one plane (one ball) is not turned."""
+    spheres = [(np.array([0.0, 0.0, 15.0]), 5.0), (np.array([-3.0, 3.0, -15.0]), 6.0)]
+    shapes = {f"ball{i}": {"type": "sphere", "center": centre.tolist(), "radius": radius,
+                           "bsdf": {"type": "dielectric", "int_ior": N, "ext_ior": 1.0},
+                           "interior": {"type": "stress", "stress_optic_coefficient": 1.0, "wavelength": 532.0,
+                                        "model": "uniform"}}
+              for i, (centre, radius) in enumerate(spheres)}
+    scene = _scene(shapes.pop("ball0"), **shapes)
+    rng = np.random.default_rng(3)
+    starts = np.stack([rng.uniform(-4, 4, 200), rng.uniform(-4, 4, 200), np.full(200, 100.0)])
+    rays = mi.Ray3f(mi.Point3f(starts.astype(np.float32)), mi.Vector3f(0, 0, -1))
+    path = scene.integrator().trace_refracted(scene, rays)
+    rotation, crossed = np.array(path.sheet_rotation), np.array(path.interfaces)
+    expected, measured, planar = [], [], []
+    for index in range(200):
+        directions = _trace_spheres(starts[:, index], np.array([0.0, 0.0, -1.0]), spheres)
+        if directions is None or crossed[index] != 4:
+            if crossed[index] == 2:
+                planar.append(rotation[index])
+            continue
+        expected.append(_solid_angle(directions))
+        measured.append(rotation[index])
+    expected, measured = np.array(expected), np.array(measured)
+    assert len(expected) >= 20 and np.abs(expected).max() > 0.01
+    sign = np.sign(np.sum(expected * measured))
+    np.testing.assert_allclose(measured, sign * expected, atol=2e-4)
+    assert len(planar) >= 20 and np.abs(planar).max() < 1e-4

@@ -85,6 +85,7 @@ class RefractedPath(NamedTuple):
     exit_point: mi.Point3f      # where it left the last interface
     exit_direction: mi.Vector3f  # and in which direction (traced from the camera)
     interfaces: mi.UInt32       # interfaces crossed or reflected at
+    sheet_rotation: mi.Float    # radians from the carried frame to the light's sheets (sheet_rotation)
 
 
 class Hit(NamedTuple):
@@ -138,6 +139,25 @@ def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u
                dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v),
                dr.select(hit & (hit_medium != 0), dr.select(entering, hit_medium, 0), medium),
                occupancy.past_surface(si, new_d))
+
+
+def sheet_rotation(first: mi.Vector3f, last: mi.Vector3f, right: mi.Vector3f, u: mi.Vector3f,
+                   v: mi.Vector3f) -> mi.Float:
+    """The angle (radians, from ``u`` towards ``v``) of the light's sheets in a bent path's carried frame
+    ``(u, v)`` at its end.
+
+    The sheets (the panel's polariser and waveplate) face the camera: a ray that
+    leaves them obliquely sees their axes as the camera's frame turned by the
+    shortest rotation from the ray's first direction to its last, which is the
+    frame every straight ray uses. The frame carried along the bent path differs
+    from it by the path's geometric rotation (the solid angle its directions
+    enclose): zero for any path in one plane.
+    """
+    a, b = -first, -last
+    axis = dr.cross(a, b)
+    cosine = dr.dot(a, b)
+    turned = right * cosine + dr.cross(axis, right) + axis * (dr.dot(axis, right) / dr.maximum(1.0 + cosine, 1e-6))
+    return dr.atan2(dr.dot(turned, v), dr.dot(turned, u))
 
 
 def _advance(si, crossing, origin, launch, reach, active):
@@ -197,9 +217,13 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     segment_jones = method.finish(state)
     stress = su2.multiply(stress, segment_jones)
     total = jones.multiply(total, jones.from_quaternion(segment_jones))
+    # The light's sheets lie in the camera's frame turned straight onto the last direction; the frame carried
+    # along the bent path has turned from it by the path's geometric rotation.
+    rotation = sheet_rotation(mi.Vector3f(ray.d), d, setup.right, u, v)
+    total = jones.multiply(total, jones.from_quaternion(su2.rotator(rotation)))
     # Bent past a finite light panel's edge, it brings no light.
     blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d))
-    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces)
+    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces, rotation)
 
 
 @dr.syntax
