@@ -137,6 +137,9 @@ def test_total_internal_reflection_is_followed_without_nan_and_within_max_crossi
         assert 0.0 <= channels["Y"].min() and channels["Y"].max() <= 1.0 + 1e-5
         paths[limit] = scene.integrator().trace_refracted(scene, rays)
         assert np.array(paths[limit].interfaces).max() <= limit
+    # A ray sent back towards the camera's side by its reflections never meets the panel behind the specimens.
+    backwards = np.array(paths[64].exit_direction)[2] >= 0
+    np.testing.assert_array_equal(np.array(paths[64].blocked)[backwards], True)
     crossed = np.array(paths[64].interfaces)
     # Some rays meet more than the two faces they cross: they were totally reflected on the way.
     assert crossed.max() >= 3

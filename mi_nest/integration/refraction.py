@@ -221,8 +221,9 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     # along the bent path has turned from it by the path's geometric rotation.
     rotation = sheet_rotation(mi.Vector3f(ray.d), d, setup.right, u, v)
     total = jones.multiply(total, jones.from_quaternion(su2.rotator(rotation)))
-    # Bent past a finite light panel's edge, it brings no light.
-    blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d))
+    # Bent past a finite light panel's edge, or sent back towards the camera's side (the panel lies behind the
+    # specimens), it brings no light.
+    blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d)) | (dr.dot(d, mi.Vector3f(ray.d)) <= 0)
     return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces, rotation)
 
 
