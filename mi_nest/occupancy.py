@@ -14,6 +14,11 @@ import numpy as np
 MAX_CROSSINGS = 64
 
 
+def shape_id(shape: mi.Shape) -> int:
+    """The registry id a ray's ``si.shape`` carries for ``shape`` (what lookup tables are indexed by)."""
+    return int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+
+
 def crossings_along_lines(scene: mi.Scene, shape: mi.Shape, starts: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``(crossings, lines)`` distances along ``k`` from ``starts`` where each line crosses ``shape``.
 
@@ -21,7 +26,7 @@ def crossings_along_lines(scene: mi.Scene, shape: mi.Shape, starts: np.ndarray, 
     are passed through); ``inf`` pads lines with fewer crossings. A point is
     inside after an odd number of them.
     """
-    shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
+    target = shape_id(shape)
     back = 1e-3
     origin = mi.Point3f(*(starts - back * k).T)
     direction = mi.Vector3f(*np.broadcast_to(k, starts.shape).T)
@@ -31,7 +36,7 @@ def crossings_along_lines(scene: mi.Scene, shape: mi.Shape, starts: np.ndarray, 
     for _ in range(MAX_CROSSINGS):
         si = scene.ray_intersect(ray, active=active)
         active &= si.is_valid()
-        on_shape = active & (dr.reinterpret_array(mi.UInt32, si.shape) == shape_id)
+        on_shape = active & (dr.reinterpret_array(mi.UInt32, si.shape) == target)
         distance = dr.select(on_shape, dr.dot(si.p - origin, direction) - back, dr.inf)
         dr.eval(distance, active)
         crossings.append(np.array(distance))

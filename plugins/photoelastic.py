@@ -377,21 +377,14 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         whole Jones matrix) the intensities are its, the Jones channels the specimens' own."""
         setup = self._prepared_now.setup
         q = self.jones(state, blocked)
+        matrix = q if path_jones is None else self.jones(tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
         delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
-        if path_jones is None:
-            def intensity(scope):
-                return scope.intensity(q)
-        else:
-            path_jones = tuple(tuple(dr.select(blocked, 0.0, x) for x in part) for part in path_jones)
-
-            def intensity(scope):
-                return jones.intensity(scope.coefficients(), path_jones)
         aovs = list(q) + [delta, theta, gamma]
-        aovs += [radiance * intensity(scope) for scope in MEASUREMENTS.values()]
+        aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        return mi.Spectrum(radiance * intensity(setup.polariscope)), aovs
+        return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     @dr.syntax
     def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,

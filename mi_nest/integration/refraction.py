@@ -13,10 +13,12 @@ The walk follows the path the light takes to each camera pixel, traced from
 the camera: Snell's law at each interface, the Fresnel transmission (flux
 amplitudes) as a Jones matrix in the ray's transverse frame, which is carried
 across without twist; where the traced ray cannot leave (total internal
-reflection) it is reflected with the reflection's phases. Partial reflections
-are not followed. The stress march runs as before on each straight segment
-inside a specimen. The light's and the camera's polariscope elements act in
-the frame carried to each end, as sheets normal to the ray there.
+reflection) it is reflected with the reflection's phases; a ray trapped past
+``max_crossings``, or sent back towards the camera's side, brings no light.
+Partial reflections are not followed. The stress march runs as before on each
+straight segment inside a specimen. The camera's polariscope elements act in
+its frame; the light's face the camera, so a bent path's matrix is turned at
+the light by the path's geometric rotation (:func:`sheet_rotation`).
 """
 from __future__ import annotations
 
@@ -63,8 +65,17 @@ def interface_ratio(shape: mi.Shape) -> float | None:
     return ratio
 
 
+# Specimen and bath pairs known not to cut each other, by registry ids and bounding boxes: the check traces
+# rays, and a scene is set up again for every render pass and training batch.
+_apart_pairs = set()
+
+
 def require_apart(scene: mi.Scene, specimen: mi.Shape, bath: mi.Shape, samples: int = 512) -> None:
     """A bath's surface must not cut a specimen: the specimen lies wholly inside it or wholly outside."""
+    key = tuple((occupancy.shape_id(shape), str(shape.bbox()))
+                for shape in (specimen, bath))
+    if key in _apart_pairs:
+        return
     sampler = mi.load_dict({"type": "independent"})
     sampler.seed(0, samples)
     points = specimen.sample_position(0.0, sampler.next_2d()).p
@@ -73,6 +84,7 @@ def require_apart(scene: mi.Scene, specimen: mi.Shape, bath: mi.Shape, samples: 
         raise SceneSetupError(f"photoelastic: the surface of bath '{bath.id() or bath.class_name()}' cuts specimen "
                               f"'{specimen.id() or specimen.class_name()}' ({int(inside.sum())} of {samples} points "
                               "of the specimen's surface inside it); a bath must hold its specimens whole")
+    _apart_pairs.add(key)
 
 
 class RefractedPath(NamedTuple):
@@ -184,7 +196,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     reach = mi.Float(ray.maxt)
     medium = mi.UInt32(0)
     state, fringe = method.trace_start()
-    total = _where_biquaternion(mi.Bool(False), jones.from_quaternion(su2.identity(mi.Float(0))))
+    total = jones.from_quaternion(su2.identity(mi.Float(0)))
     stress = su2.identity(mi.Float(0))
     blocked = mi.Bool(False)
     length = mi.Float(0)
@@ -246,7 +258,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
     launch = mi.Point3f(ray.o)
     reach = mi.Float(ray.maxt)
     medium = mi.UInt32(0)
-    before = _where_biquaternion(mi.Bool(False), jones.from_quaternion(su2.identity(mi.Float(0))))
+    before = jones.from_quaternion(su2.identity(mi.Float(0)))
     crossings = mi.UInt32(0)
     active = mi.Bool(active)
 
@@ -264,6 +276,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~crossing.blocked
+
 
 def _where(condition: mi.Bool, chosen: tuple, other: tuple) -> tuple:
     return tuple(dr.select(condition, a, b) for a, b in zip(chosen, other))

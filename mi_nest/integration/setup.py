@@ -13,6 +13,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from mi_nest import occupancy
 from mi_nest.fields import StressField
 from mi_nest.physics import Polariscope, projection
 from mi_nest.plugins import polariscope, polariscope_light, stress
@@ -42,18 +43,18 @@ class SceneSetup:
         bounds = mi.ScalarBoundingBox3f()
         for shape in scene.shapes():
             medium = shape.interior_medium()
+            is_specimen = isinstance(medium, stress.StressMedium)
+            shape_id = occupancy.shape_id(shape)
             ratio = refraction.interface_ratio(shape)
-            if ratio == 1.0 and isinstance(medium, stress.StressMedium):
+            if ratio == 1.0 and is_specimen:
                 ratio = None        # index-matched: the straight walk, as without a surface
             if ratio is not None:
-                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
                 shape_ratios[shape_id] = ratio
-                if not isinstance(medium, stress.StressMedium):
+                if not is_specimen:
                     require_closed(shape, shape_id, "bath")
                     baths.append(shape)
-            if isinstance(medium, stress.StressMedium):
+            if is_specimen:
                 bounds.expand(shape.bbox())
-                shape_id = int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shape))[0])
                 require_closed(shape, shape_id)
                 if medium not in self.media:
                     self.media.append(medium)
@@ -112,11 +113,7 @@ class SceneSetup:
         direction -d. With a single medium its phase rate is folded in here,
         once per ray, instead of scaling six components at every step.
         """
-        alpha, beta = projection.projection_coefficients(*projection.transverse_basis(-d, self.right))
-        if len(self.media) == 1:
-            rate = self.media[0].phase_rate
-            alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
-        return alpha, beta
+        return self.frame_coefficients(*projection.transverse_basis(-d, self.right))
 
     def misses_panel(self, p: mi.Point3f, d: mi.Vector3f, axis: mi.Vector3f) -> mi.Bool:
         """Whether the line ``p + t d`` (t > 0), traced away from the camera, misses a finite light panel; the
@@ -134,8 +131,8 @@ class SceneSetup:
         return ~((along > 0) & (t > 0) & inside)
 
     def frame_coefficients(self, u: mi.Vector3f, v: mi.Vector3f) -> tuple[tuple, tuple]:
-        """:meth:`projection_coefficients` for a ray whose transverse frame ``(u, v)`` is carried along a bent
-        path (integration/refraction.py)."""
+        """:meth:`projection_coefficients` in a given transverse frame ``(u, v)``: a straight ray's, or one
+        carried along a bent path (integration/refraction.py)."""
         alpha, beta = projection.projection_coefficients(u, v)
         if len(self.media) == 1:
             rate = self.media[0].phase_rate

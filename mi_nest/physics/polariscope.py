@@ -21,6 +21,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from . import jones
 from .backend import Array
 
 # J = a B_a + b B_b + c B_c + d B_d (see su2.py).
@@ -92,7 +93,10 @@ class Polariscope:
         return _coefficients(self)
 
     def intensity(self, q: Sequence[Array]) -> Array:
-        """Detected intensity for the quaternion ``q`` (NumPy or Dr.Jit arrays)."""
+        """Detected intensity for the Jones quaternion ``q``, or for a general Jones matrix (a refracted
+        path's: a pair of quaternions, jones.py), on NumPy or Dr.Jit arrays."""
+        if len(q) == 2:
+            return jones.intensity(self.coefficients(), q)
         total = 0.0
         for re, im in self.coefficients():
             amp_re = sum(k * x for k, x in zip(re, q) if k != 0.0)

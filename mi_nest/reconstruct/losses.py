@@ -7,7 +7,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..physics import MEASUREMENTS, Polariscope, jones
+from ..physics import MEASUREMENTS, Polariscope
 from ..physics.jones import Biquaternion
 from ..physics.su2 import Quaternion
 from .rays import device_array
@@ -17,8 +17,6 @@ def intensities(q: Quaternion | Biquaternion,
                 polariscopes: Sequence[Polariscope] = tuple(MEASUREMENTS.values())) -> list[mi.Float]:
     """The normalised intensities of ``polariscopes`` (default the nominal 16, in dataset channel order) for a
     Jones quaternion, or a refracted path's general Jones matrix (a pair of quaternions)."""
-    if len(q) == 2:
-        return [jones.intensity(scope.coefficients(), q) for scope in polariscopes]
     return [scope.intensity(q) for scope in polariscopes]
 
 
