@@ -17,6 +17,14 @@ rotations at 48 x 48, a 32-node grid, 4,000 iterations: 10.6% index-matched),
 so that each of the 20 reconstructions takes one or two minutes::
 
     .venv/bin/python experiments/refraction.py
+
+``--preset targets`` runs the reconstruction targets' configuration instead
+(``experiments/targets.py``: 32 x 32 rotations at 64 x 64, the disk at 100 N on
+a 64-node grid, the kitten on a 32-node grid, each scene's options there),
+capped at 20,000 iterations rather than minutes so that a busy machine changes
+the time, not the result::
+
+    .venv/bin/python experiments/refraction.py --preset targets --surroundings air
 """
 from __future__ import annotations
 
@@ -28,11 +36,18 @@ import numpy as np
 
 import common
 import mi_nest
+import targets
 from mi_nest.reconstruct import REGULARISED
 
 PART = 1.55
 SURROUNDINGS = {"air": 1.0, "water (1.33)": 1.33, "bath 1.45": 1.45, "bath 1.50": 1.50, "matched 1.55": 1.55}
 SCENES = {"disk_compression": {"load": 60.0, "contact_width": 4.0}, "kitten": {"fringe_value": 4500.0}}
+# Per preset: rotations, image resolution, iterations, each scene's (defines, reconstruction options).
+PRESETS = {
+    "demo": (12, 48, 4000, {name: (defines, {"resolution": 32, "regulariser": REGULARISED})
+                            for name, defines in SCENES.items()}),
+    "targets": (32, 64, 20_000, {name: targets.SCENES[name] for name in SCENES}),
+}
 
 
 def render_cost(name, defines, res, repeats=5):
@@ -56,35 +71,35 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=sorted(SCENES))
     parser.add_argument("--surroundings", nargs="+", default=list(SURROUNDINGS), choices=list(SURROUNDINGS))
-    parser.add_argument("--rotations", type=int, default=12)
-    parser.add_argument("--res", type=int, default=48)
-    parser.add_argument("--resolution", type=int, default=32, help="grid nodes along the longest axis")
-    parser.add_argument("--iterations", type=int, default=4000)
-    parser.add_argument("--minutes", type=float, default=10.0, help="cap on each reconstruction")
-    parser.add_argument("--output", type=Path, default=Path("experiments/out/refraction"))
+    parser.add_argument("--preset", default="demo", choices=sorted(PRESETS),
+                        help="demo: 12 x 12 at 48 x 48, 4,000 iterations; targets: experiments/targets.py's runs")
+    parser.add_argument("--minutes", type=float, default=60.0, help="cap on each reconstruction")
+    parser.add_argument("--skip-timing", action="store_true", help="leave out the render timings")
+    parser.add_argument("--output", type=Path, help="default: experiments/out/refraction[_PRESET]")
     args = parser.parse_args()
+    rotations, res, iterations, configurations = PRESETS[args.preset]
+    output = args.output or Path("experiments/out/refraction" + ("" if args.preset == "demo" else f"_{args.preset}"))
 
-    timing = [render_cost(name, SCENES[name], 256) for name in args.scenes]
-    common.write_table(timing, args.output / "refraction_render.csv")
+    if not args.skip_timing:
+        timing = [render_cost(name, configurations[name][0], 256) for name in args.scenes]
+        common.write_table(timing, output / "refraction_render.csv")
     rows = []
     for name in args.scenes:
+        scene_defines, options = configurations[name]
         for surrounding in args.surroundings:
             indices = {"ior": PART, "ext_ior": SURROUNDINGS[surrounding]}
-            defines = {**SCENES[name], **indices}
-            data, simulated = common.dataset(name, args.output, args.rotations, args.res, defines)
-            for model, model_defines in (("straight", {**SCENES[name], "ior": 1.0, "ext_ior": 1.0}),
+            defines = {**scene_defines, **indices}
+            data, simulated = common.dataset(name, output, rotations, res, defines)
+            for model, model_defines in (("straight", {**scene_defines, "ior": 1.0, "ext_ior": 1.0}),
                                          ("refraction-aware", defines)):
                 label = f"{name} {surrounding} {model}"
-                row, _ = common.reconstruct(name, data, args.output, label.replace(" ", "_"), args.minutes,
-                                                 args.res, model_defines, iterations=args.iterations,
-                                                 resolution=args.resolution, regulariser=REGULARISED,
-                                                 track_error_every=500)
+                row, _ = common.reconstruct(name, data, output, label.replace(" ", "_"), args.minutes, res,
+                                            model_defines, iterations=iterations, track_error_every=500, **options)
                 rows.append({"scene": name, "surrounding": surrounding, "n_ratio": round(PART / indices["ext_ior"], 4),
                              "model": model, "simulate_s": round(simulated, 1),
                              "iterations_per_s": round(row["iterations"] / row["optimise_s"], 1), **row})
-            common.write_table(rows, args.output / "refraction.csv")
-    plot(rows, args.output / "refraction.png", f"{args.rotations}x{args.rotations} rotations at {args.res}x{args.res}, "
-                                                  f"{args.iterations} iterations")
+            common.write_table(rows, output / "refraction.csv")
+    plot(rows, output / "refraction.png", f"{rotations}x{rotations} rotations at {res}x{res}, {iterations} iterations")
 
 
 def plot(rows, path, subtitle):

@@ -78,6 +78,15 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
          Where surfaces refract, a ray that would cross more (trapped by total
          internal reflection) brings no light. (Default: 64)
 
+     * - max_bounces
+       - |int|
+       - Where surfaces refract: most partial reflections followed per ghost
+         path. Each sample then also walks one path that chooses at random,
+         at every crossing, reflection or transmission, and adds its
+         intensity (unbiased for the ghosts of up to ``max_bounces``
+         reflections); 0 follows the transmitted path alone, which is what
+         reconstruction models (docs/refraction.md). (Default: 0)
+
     Renders integrated photoelasticity (docs/physics.md): for every camera ray it
     follows the light from the ``polariscope_light`` panel to the camera through
     every shape whose interior is a ``stress`` medium, entering and leaving as
@@ -137,6 +146,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.max_crossings = int(props.get("max_crossings", 64))
         if self.max_crossings < 2:
             raise ValueError(f"photoelastic: 'max_crossings' must be at least 2, got {self.max_crossings}")
+        self.max_bounces = int(props.get("max_bounces", 0))
+        if self.max_bounces < 0:
+            raise ValueError(f"photoelastic: 'max_bounces' must be 0 or more, got {self.max_bounces}")
         self.decision = None        # the method and step of the last render or ray batch, and for 'auto' why
         self._decided = None        # the decision that deciding_once() keeps
         self._prepared_now = None   # what the render in progress shares with sample()
@@ -150,7 +162,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def to_string(self) -> str:
         return (f"PhotoelasticIntegrator[method={self.method}, step_size={self.step_size:g} mm, "
-                f"points={self.points}, jitter={self.jitter}, max_crossings={self.max_crossings}]")
+                f"points={self.points}, jitter={self.jitter}, max_crossings={self.max_crossings}, "
+                f"max_bounces={self.max_bounces}]")
 
     def channel_names(self, film: mi.Film) -> list[str]:
         """Names of the channels of the image :meth:`render` returns, in order."""
@@ -342,7 +355,14 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
         if mode == dr.ADMode.Primal and prepared.setup.refracting:
             path = self.walk_refracted(scene, ray, prepared, active, seeds)
-            main, aovs = self.outputs(path.stress, path.fringe, path.blocked, path.length, path.jones)
+            ghost = None
+            if self.max_bounces > 0:
+                ghost = self.walk_refracted(scene, ray, prepared, active, mi.UInt32(sampler.next_1d() * 4294967296.0),
+                                            self.max_bounces)
+                # The path without partial reflections is the transmitted one, already counted.
+                ghost = self.jones(tuple(ghost.jones[0]) + tuple(ghost.jones[1]),
+                                   ghost.blocked | (ghost.reflections == 0))
+            main, aovs = self.outputs(path.stress, path.fringe, path.blocked, path.length, path.jones, ghost)
             return main, mi.Bool(True), aovs, None
         if mode == dr.ADMode.Primal:
             (state, fringe), blocked, length = self.walk(scene, ray, prepared, active, seeds,
@@ -372,19 +392,25 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return mi.Spectrum(0), mi.Bool(True), [mi.Float(0)] * len(CHANNELS), None
 
     def outputs(self, state: tuple, fringe: tuple, blocked: mi.Bool, length: mi.Float,
-                path_jones: jones.Biquaternion | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
+                path_jones: jones.Biquaternion | None = None,
+                ghost: jones.Biquaternion | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
         """Main intensity and the AOV channels from a traced state; with ``path_jones`` (a refracted path's
-        whole Jones matrix) the intensities are its, the Jones channels the specimens' own."""
+        whole Jones matrix) the intensities are its, the Jones channels the specimens' own; a ``ghost``
+        path's (partly reflected, zero where there is none) intensities add to them (incoherent light)."""
         setup = self._prepared_now.setup
         q = self.jones(state, blocked)
         matrix = q if path_jones is None else self.jones(tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
         delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
+
+        def intensity(scope):
+            seen = scope.intensity(matrix)
+            return radiance * (seen if ghost is None else seen + scope.intensity(ghost))
         aovs = list(q) + [delta, theta, gamma]
-        aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
+        aovs += [intensity(scope) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
+        return mi.Spectrum(intensity(setup.polariscope)), aovs
 
     @dr.syntax
     def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
@@ -458,21 +484,23 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return carry, blocked, length
 
     def trace_refracted(self, scene: mi.Scene, rays: mi.Ray3f, sensor: int | mi.Sensor = 0,
-                        seed: int = 0) -> refraction.RefractedPath:
+                        seed: int = 0, bounces: int = 0) -> refraction.RefractedPath:
         """The refracted walk of arbitrary ``rays`` in ``sensor``'s polariscope frame: each ray's exit point and
-        direction, interfaces crossed and Jones matrices (for tools and tests; renders call it per sample)."""
+        direction, interfaces crossed and Jones matrices (for tools and tests; renders call it per sample). With
+        ``bounces``, a sampled path of up to that many partial reflections instead of the transmitted one."""
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
         with dr.suspend_grad(), self._prepared(scene, sensor) as prepared:
-            path = self.walk_refracted(scene, rays, prepared, mi.Bool(True), _ray_seeds(seed, dr.width(rays.o)))
+            path = self.walk_refracted(scene, rays, prepared, mi.Bool(True), _ray_seeds(seed, dr.width(rays.o)),
+                                       bounces)
             dr.eval(path)
             return path
 
     def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool,
-                       seeds: mi.UInt32) -> refraction.RefractedPath:
+                       seeds: mi.UInt32, bounces: int = 0) -> refraction.RefractedPath:
         """The walk where surfaces refract (``mi_nest/integration/refraction.py``)."""
         return refraction.trace(scene, ray, prepared.setup, prepared.decision.method, prepared.decision.step_size,
-                                seeds, active, self.max_crossings, RaySegment)
+                                seeds, active, self.max_crossings, RaySegment, bounces)
 
     def replay(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
                state: tuple, state_grad: tuple) -> None:

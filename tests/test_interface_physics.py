@@ -35,6 +35,27 @@ def test_reflected_and_transmitted_power_add_up_per_polarisation(n1, n2):
     np.testing.assert_allclose(np.abs(r_p) ** 2 + np.abs(tau_p) ** 2, 1.0, atol=1e-12)
 
 
+@pytest.mark.parametrize("n1, n2", [(1.0, 1.55), (1.55, 1.0), (1.33, 1.55), (1.55, 1.45)])
+def test_the_walks_real_coefficients_equal_the_complex_ones_on_numpy_and_drjit(n1, n2):
+    """What the renderer evaluates per crossing (real amplitudes below the critical angle, phases beyond it)
+    is :func:`flux_coefficients`, on either backend."""
+    r_s, r_p, tau_s, tau_p = interface.flux_coefficients(np.cos(ANGLES), n1, n2)
+    total = np.abs(tau_s) == 0
+    # Float32 near the critical angle, where cos_t has an infinite slope: 1e-5.
+    for convert, atol in ((np.asarray, 1e-12), (lambda x: mi.Float(np.asarray(x, dtype=np.float32)), 1e-5)):
+        cos_i, ratio = convert(np.cos(ANGLES)), n2 / n1
+        got = [np.asarray(x, dtype=np.float64) for x in (*interface.reflected_amplitudes(cos_i, ratio),
+                                                         *interface.transmitted_flux_amplitudes(cos_i, ratio),
+                                                         *interface.reflection_phases(cos_i, ratio))]
+        np.testing.assert_allclose(got[0][~total], np.real(r_s[~total]), atol=atol)
+        np.testing.assert_allclose(got[1][~total], np.real(r_p[~total]), atol=atol)
+        np.testing.assert_allclose(got[2], np.real(tau_s), atol=atol)
+        np.testing.assert_allclose(got[3], np.real(tau_p), atol=atol)
+        np.testing.assert_allclose(got[4][total], np.angle(r_s[total]), atol=atol)
+        np.testing.assert_allclose(got[5][total], np.angle(r_p[total]), atol=atol)
+    assert total.any() == (n1 > n2)
+
+
 def test_normal_incidence_and_brewsters_angle_in_closed_form():
     n1, n2 = 1.0, 1.55
     r_s, r_p, t_s, t_p = interface.amplitude_coefficients(1.0, n1, n2)

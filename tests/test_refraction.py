@@ -158,6 +158,10 @@ def test_total_reflection_keeps_the_light_whole():
     path = scene.integrator().trace_refracted(scene, rays)
     reflected = np.array(path.interfaces) == 3
     assert reflected.any()
+    # Inside, the march goes on past the reflection: unfolded by the mirror, every chord crosses the square
+    # from face to parallel face at the refraction angle.
+    inside = 6.0 / math.sqrt(1.0 - (math.sin(math.radians(45.0)) / N) ** 2)
+    np.testing.assert_allclose(np.array(path.length), inside, rtol=1e-5)
     matrices = np.array(path.jones[0]).T, np.array(path.jones[1]).T
     for a, b in zip(matrices[0][reflected], matrices[1][reflected]):
         singular = np.linalg.svd(jones.to_matrix((tuple(a), tuple(b))), compute_uv=False)

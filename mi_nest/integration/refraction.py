@@ -15,8 +15,12 @@ amplitudes) as a Jones matrix in the ray's transverse frame, which is carried
 across without twist; where the traced ray cannot leave (total internal
 reflection) it is reflected with the reflection's phases; a ray trapped past
 ``max_crossings``, or sent back towards the camera's side, brings no light.
-Partial reflections are not followed. The stress march runs as before on each
-straight segment inside a specimen. The camera's polariscope elements act in
+That transmitted path is deterministic and differentiable. Partial reflections
+make the ghosts: with ``bounces`` the walk instead samples at each crossing
+where the light is partly reflected, reflection or transmission, and weights
+the chosen Fresnel matrix by the choice's probability (the integrator adds the
+ghosts' intensities to the transmitted path's). The stress march runs as
+before on each straight segment inside a specimen. The camera's polariscope elements act in
 its frame; the light's face the camera, so a bent path's matrix is turned at
 the light by the path's geometric rotation (:func:`sheet_rotation`).
 """
@@ -98,6 +102,7 @@ class RefractedPath(NamedTuple):
     exit_direction: mi.Vector3f  # and in which direction (traced from the camera)
     interfaces: mi.UInt32       # interfaces crossed or reflected at
     sheet_rotation: mi.Float    # radians from the carried frame to the light's sheets (sheet_rotation)
+    reflections: mi.UInt32      # partial reflections taken (sampled walks only)
 
 
 class Hit(NamedTuple):
@@ -108,6 +113,7 @@ class Hit(NamedTuple):
     chord: mi.Float
     blocked: mi.Bool            # an opaque shape
     bend: mi.Bool               # a dielectric surface
+    partial: mi.Bool            # where the walk took its partial reflection (sampled walks only)
     matrix: jones.Biquaternion  # its Jones matrix in the carried frame (the identity where it does not bend)
     direction: mi.Vector3f      # the traced ray's direction after it
     u: mi.Vector3f              # and its carried frame
@@ -116,14 +122,34 @@ class Hit(NamedTuple):
     launch: mi.Point3f          # where the next query starts
 
 
+# Where a sampled walk may follow a partial reflection, the share of its rays that do. Ghost paths are weak
+# (R^2 ~ 0.2% of the light at n = 1.55) but every crossing branches: an even split samples the few-bounce paths
+# that carry them far more often than Fresnel-proportional choices would (which spend nearly every ray on the
+# transmitted path, already counted exactly).
+REFLECTION_PROBABILITY = 0.5
+# The choice's value where no partial reflection may be taken (no bounces left): transmitted, weight 1.
+NO_CHOICE = 2.0
+
+
+def reflection_choice(seeds: mi.UInt32, crossings: mi.UInt32, reflections: mi.UInt32, bounces: int) -> mi.Float:
+    """A uniform number per ray and crossing that picks a partial reflection below ``REFLECTION_PROBABILITY``;
+    ``NO_CHOICE`` once ``bounces`` are taken."""
+    # The high bit keeps these apart from the jitter's streams (sample_tea_32(seeds, crossings)).
+    uniform = mi.sample_tea_float32(seeds, crossings | 0x80000000)
+    return dr.select(reflections < bounces, uniform, NO_CHOICE)
+
+
 def _query(scene, launch, d, reach, ray, active):
     return scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths), ray_flags=mi.RayFlags.Minimal,
                                coherent=False, active=active)
 
 
 def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u: mi.Vector3f, v: mi.Vector3f,
-              medium: mi.UInt32, setup: SceneSetup, step_size: float, active: mi.Bool) -> Hit:
-    """The geometry and optics of one crossing, the same in the primal walk and its replay."""
+              medium: mi.UInt32, setup: SceneSetup, step_size: float, active: mi.Bool,
+              choice: mi.Float | None = None) -> Hit:
+    """The geometry and optics of one crossing, the same in the primal walk and its replay; with ``choice``
+    (:func:`reflection_choice`) a partial reflection may be taken instead of the transmission, each weighted
+    by the inverse square root of its probability (intensities are quadratic in the matrix)."""
     hit = active & si.is_valid()
     shape = dr.reinterpret_array(mi.UInt32, si.shape)
     hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
@@ -135,21 +161,34 @@ def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u
     steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
     # The traced ray goes from index n to n * step; the light the other way.
     step = dr.select(entering, ratio, dr.rcp(dr.maximum(ratio, 1e-30)))
-    turned, cos_traced, reflected = interface.refract(d, si.n, mi.Float(1.0), step)
+    turned, cos_traced, total = interface.refract(d, si.n, mi.Float(1.0), step)
     turned = mi.Vector3f(turned)
     s_axis = mi.Vector3f(interface.s_axis(d, si.n, u))
     tau_s, tau_p = interface.transmitted_flux_amplitudes(dr.abs(dr.dot(turned, si.n)),
                                                          dr.rcp(dr.maximum(step, 1e-30)))
     phi_s, phi_p = interface.reflection_phases(cos_traced, step)
-    x = (dr.select(reflected, dr.cos(phi_s), tau_s), dr.select(reflected, dr.sin(phi_s), 0.0))
-    y = (dr.select(reflected, dr.cos(phi_p), tau_p), dr.select(reflected, dr.sin(phi_p), 0.0))
+    x = (dr.select(total, dr.cos(phi_s), tau_s), dr.select(total, dr.sin(phi_s), 0.0))
+    y = (dr.select(total, dr.cos(phi_p), tau_p), dr.select(total, dr.sin(phi_p), 0.0))
+    partial = mi.Bool(False)
+    if choice is not None:
+        chosen = bend & ~total & (choice < 1.0)
+        partial = chosen & (choice < REFLECTION_PROBABILITY)
+        weight = dr.select(chosen, dr.rsqrt(dr.select(partial, REFLECTION_PROBABILITY,
+                                                      1.0 - REFLECTION_PROBABILITY)), 1.0)
+        # Reflected on the traced ray's side: the light meets it at the same angle from the same medium.
+        r_s, r_p = interface.reflected_amplitudes(cos_traced, step)
+        x = (weight * dr.select(partial, r_s, x[0]), weight * x[1])
+        y = (weight * dr.select(partial, r_p, y[0]), weight * y[1])
+        turned = dr.select(partial, mi.Vector3f(interface.reflect(d, si.n)), turned)
     matrix = _where_biquaternion(bend, jones.diattenuator(x, y, interface.s_angle(u, v, s_axis)))
     new_d = dr.select(bend, turned, d)
+    # Reflected (totally or partly), the ray stays on its side of the surface.
+    stays = bend & (total | partial)
     return Hit(marched, steps, chord / mi.Float(dr.maximum(steps, 1)), chord, hit & (hit_medium == 0) & ~bend, bend,
-               matrix, new_d,
+               partial, matrix, new_d,
                dr.select(bend, mi.Vector3f(interface.transported(u, d, turned, s_axis)), u),
                dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v),
-               dr.select(hit & (hit_medium != 0), dr.select(entering, hit_medium, 0), medium),
+               dr.select(hit & (hit_medium != 0) & ~stays, dr.select(entering, hit_medium, 0), medium),
                occupancy.past_surface(si, new_d))
 
 
@@ -188,8 +227,10 @@ def _start(ray, setup):
 
 @dr.syntax
 def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
-          active: mi.Bool, max_crossings: int, make_segment) -> RefractedPath:
-    """Follow each camera ray through every interface and specimen; see the module's docstring."""
+          active: mi.Bool, max_crossings: int, make_segment, bounces: int = 0) -> RefractedPath:
+    """Follow each camera ray through every interface and specimen; see the module's docstring. With
+    ``bounces``, sample a path of up to that many partial reflections (the Jones matrix weighted by the inverse
+    square root of its probability)."""
     d, u, v = _start(ray, setup)
     origin = mi.Point3f(ray.o)
     launch = mi.Point3f(ray.o)
@@ -202,6 +243,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     length = mi.Float(0)
     crossings = mi.UInt32(0)
     interfaces = mi.UInt32(0)
+    reflections = mi.UInt32(0)
     active = mi.Bool(active)
 
     while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment]):
@@ -210,7 +252,8 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         trapped = active & si.is_valid() & (crossings >= max_crossings)
         blocked |= trapped
         active &= ~trapped
-        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
+        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
+                             reflection_choice(seeds, crossings, reflections, bounces) if bounces > 0 else None)
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         state, fringe = method.trace((state, fringe), segment, setup)
@@ -222,6 +265,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         total = jones.multiply(jones.multiply(total, jones.from_quaternion(segment_jones)), crossing.matrix)
         state = _where(crossing.bend, method.trace_start()[0], state)
         interfaces += dr.select(crossing.bend, 1, 0)
+        reflections += dr.select(crossing.partial, 1, 0)
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~blocked
@@ -236,7 +280,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     # Bent past a finite light panel's edge, or sent back towards the camera's side (the panel lies behind the
     # specimens), it brings no light.
     blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d)) | (dr.dot(d, mi.Vector3f(ray.d)) <= 0)
-    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces, rotation)
+    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces, rotation, reflections)
 
 
 @dr.syntax

@@ -77,6 +77,15 @@ def transmitted_flux_amplitudes(cos_i: Array, ratio: Array) -> tuple[Array, Arra
     return flux / s_den, flux / p_den
 
 
+def reflected_amplitudes(cos_i: Array, ratio: Array) -> tuple[Array, Array]:
+    """``(r_s, r_p)`` of :func:`amplitude_coefficients` (real) for incidence ``cos_i`` and ``ratio = n2 / n1``
+    below the critical angle, on NumPy or Dr.Jit (beyond it: :func:`reflection_phases`)."""
+    xp = ops(cos_i, ratio)
+    cos_t = xp.sqrt(xp.maximum(1.0 - (1.0 - cos_i * cos_i) / (ratio * ratio), 0.0))
+    return ((cos_i - ratio * cos_t) / (cos_i + ratio * cos_t),
+            (ratio * cos_i - cos_t) / (ratio * cos_i + cos_t))
+
+
 def reflection_phases(cos_i: Array, ratio: Array) -> tuple[Array, Array]:
     """Phases ``(phi_s, phi_p)`` of ``r_s``, ``r_p`` beyond the critical angle (``ratio = n2 / n1 < 1``), on
     NumPy or Dr.Jit: :func:`total_reflection_phases`."""
