@@ -25,6 +25,12 @@ capped at 20,000 iterations rather than minutes so that a busy machine changes
 the time, not the result::
 
     .venv/bin/python experiments/refraction.py --preset targets --surroundings air
+
+``--max-bounces N`` simulates the ghosts too (partial reflections, up to N per
+path) and adds a third model, refraction-aware with the same ghosts; the
+second then follows the transmitted path alone::
+
+    .venv/bin/python experiments/refraction.py --max-bounces 4 --surroundings air
 """
 from __future__ import annotations
 
@@ -74,11 +80,14 @@ def main():
     parser.add_argument("--preset", default="demo", choices=sorted(PRESETS),
                         help="demo: 12 x 12 at 48 x 48, 4,000 iterations; targets: experiments/targets.py's runs")
     parser.add_argument("--minutes", type=float, default=60.0, help="cap on each reconstruction")
+    parser.add_argument("--max-bounces", type=int, default=0,
+                        help="partial reflections per ghost path in the simulated data (0: the transmitted path alone)")
     parser.add_argument("--skip-timing", action="store_true", help="leave out the render timings")
-    parser.add_argument("--output", type=Path, help="default: experiments/out/refraction[_PRESET]")
+    parser.add_argument("--output", type=Path, help="default: experiments/out/refraction[_PRESET][_ghostsN]")
     args = parser.parse_args()
     rotations, res, iterations, configurations = PRESETS[args.preset]
-    output = args.output or Path("experiments/out/refraction" + ("" if args.preset == "demo" else f"_{args.preset}"))
+    output = args.output or Path("experiments/out/refraction" + ("" if args.preset == "demo" else f"_{args.preset}")
+                                 + (f"_ghosts{args.max_bounces}" if args.max_bounces else ""))
 
     if not args.skip_timing:
         timing = [render_cost(name, configurations[name][0], 256) for name in args.scenes]
@@ -88,10 +97,13 @@ def main():
         scene_defines, options = configurations[name]
         for surrounding in args.surroundings:
             indices = {"ior": PART, "ext_ior": SURROUNDINGS[surrounding]}
-            defines = {**scene_defines, **indices}
+            defines = {**scene_defines, **indices, "max_bounces": args.max_bounces}
             data, simulated = common.dataset(name, output, rotations, res, defines)
-            for model, model_defines in (("straight", {**scene_defines, "ior": 1.0, "ext_ior": 1.0}),
-                                         ("refraction-aware", defines)):
+            models = [("straight", {**scene_defines, "ior": 1.0, "ext_ior": 1.0}),
+                      ("refraction-aware", {**defines, "max_bounces": 0})]
+            if args.max_bounces:
+                models.append(("refraction-aware with ghosts", defines))
+            for model, model_defines in models:
                 label = f"{name} {surrounding} {model}"
                 row, _ = common.reconstruct(name, data, output, label.replace(" ", "_"), args.minutes, res,
                                             model_defines, iterations=iterations, track_error_every=500, **options)
@@ -110,10 +122,12 @@ def plot(rows, path, subtitle):
     for axis, name in zip(axes[0], scenes):
         surroundings = list(dict.fromkeys(row["surrounding"] for row in rows if row["scene"] == name))
         x = np.arange(len(surroundings))
-        for offset, model in ((-0.2, "straight"), (0.2, "refraction-aware")):
+        models = list(dict.fromkeys(row["model"] for row in rows))
+        width = 0.8 / len(models)
+        for index, model in enumerate(models):
             errors = [100 * float(next(r["deviatoric_error"] for r in rows if r["scene"] == name
                                        and r["surrounding"] == s and r["model"] == model)) for s in surroundings]
-            bars = axis.bar(x + offset, errors, width=0.4, label=model)
+            bars = axis.bar(x + (index - (len(models) - 1) / 2) * width, errors, width=width, label=model)
             axis.bar_label(bars, fmt="%.0f", fontsize=7)
         axis.set_xticks(x, surroundings, fontsize=8)
         axis.set(ylabel="relative deviatoric stress error (%)", title=f"{name}, part n = {PART}")

@@ -84,8 +84,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
          path. Each sample then also walks one path that chooses at random,
          at every crossing, reflection or transmission, and adds its
          intensity (unbiased for the ghosts of up to ``max_bounces``
-         reflections); 0 follows the transmitted path alone, which is what
-         reconstruction models (docs/refraction.md). (Default: 0)
+         reflections); 0 follows the transmitted path alone. Ray batches
+         carry the ghost too, so reconstruction models what renders show
+         (docs/refraction.md). (Default: 4)
 
     Renders integrated photoelasticity (docs/physics.md): for every camera ray it
     follows the light from the ``polariscope_light`` panel to the camera through
@@ -106,7 +107,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     and the intensities the whole path's. Ray batches (``trace_rays``) then
     return the path's matrix as 8 numbers, and ``backpropagate_rays`` replays
     it (``product`` and ``magnus4``); ``render_backward`` is not available
-    through refracting surfaces.
+    through refracting surfaces. With ``max_bounces`` each sample adds a ghost
+    path's intensities, in renders and ray batches alike (16 numbers then).
 
     The film receives the intensity of the scene's polariscope as its main
     channel (``Y``) and, as named channels, the Jones product
@@ -146,7 +148,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.max_crossings = int(props.get("max_crossings", 64))
         if self.max_crossings < 2:
             raise ValueError(f"photoelastic: 'max_crossings' must be at least 2, got {self.max_crossings}")
-        self.max_bounces = int(props.get("max_bounces", 0))
+        self.max_bounces = int(props.get("max_bounces", refraction.DEFAULT_MAX_BOUNCES))
         if self.max_bounces < 0:
             raise ValueError(f"photoelastic: 'max_bounces' must be 0 or more, got {self.max_bounces}")
         self.decision = None        # the method and step of the last render or ray batch, and for 'auto' why
@@ -280,8 +282,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         the polariscope frame; ``field``, if given, is marched in every specimen
         instead of its own stress. Returns ``(state, blocked, length)``: the
         accumulated state (the Jones quaternion, or for ``linear`` the summed
-        generator; see :meth:`jones`), whether an opaque shape stops the ray, and
-        its path length (mm) inside specimens.
+        generator; where surfaces refract the path's general Jones matrix, and
+        with ``max_bounces`` a sampled ghost path's after it; see :meth:`jones`),
+        whether an opaque shape stops the ray (its transmitted path), and its path
+        length (mm) inside specimens.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
             seeds = _ray_seeds(seed, dr.width(rays.o))
@@ -289,6 +293,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             if prepared.setup.refracting:
                 path = self.walk_refracted(scene, rays, prepared, mi.Bool(True), seeds)
                 state = tuple(path.jones[0]) + tuple(path.jones[1])
+                if self.max_bounces > 0:
+                    state += self._ghost_state(scene, rays, prepared, _ghost_seeds(seed, dr.width(rays.o)))
                 dr.eval(state, path.blocked, path.length)
                 return state, path.blocked, path.length
             (state, _), blocked, length = self.walk(scene, rays, prepared, mi.Bool(True), seeds,
@@ -312,10 +318,17 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 guards.require_product_through_refraction(prepared.decision.method)
                 total, grad = (tuple(mi.Float(x) for x in values) for values in (state, state_grad))
                 dr.make_opaque(total, grad)
-                refraction.replay(scene, rays, prepared.setup, prepared.decision.method, prepared.decision.step_size,
-                                  _ray_seeds(seed, dr.width(rays.o)), mi.Bool(True), self.max_crossings, RaySegment,
-                                  jones.Biquaternion((total[:4], total[4:])),
-                                  jones.Biquaternion((grad[:4], grad[4:])))
+                count = dr.width(rays.o)
+                # The transmitted path, then the ghost (the same choices again: the same seeds).
+                for start, seeds, bounces in ((0, _ray_seeds(seed, count), 0),
+                                              (8, _ghost_seeds(seed, count), self.max_bounces))[:len(total) // 8]:
+                    refraction.replay(scene, rays, prepared.setup, prepared.decision.method,
+                                      prepared.decision.step_size, seeds, mi.Bool(True), self.max_crossings,
+                                      RaySegment, jones.Biquaternion((total[start:start + 4], total[start + 4:start + 8])),
+                                      jones.Biquaternion((grad[start:start + 4], grad[start + 4:start + 8])), bounces)
+                    # Each replay's accumulation into the field's gradients runs before the next is traced: without
+                    # it, the second replay's share was lost in about one run in three (Dr.Jit 1.x, LLVM).
+                    dr.eval()
                 return
             # Unevaluated adjoints carry the loss's constants (1 / batch size...) into the kernel,
             # which would then be rebuilt whenever they change.
@@ -331,12 +344,14 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             return blocked
         return blocked | setup.misses_panel(mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Vector3f(ray.d))
 
-    def jones(self, state: tuple, blocked: mi.Bool) -> su2.Quaternion | jones.Biquaternion:
+    def jones(self, state: tuple, blocked: mi.Bool) -> su2.Quaternion | jones.Biquaternion | jones.Incoherent:
         """The Jones matrix from a traced state (zero where blocked): a quaternion, or where surfaces refract
-        (an 8-tuple state) the path's general Jones matrix."""
+        (an 8-tuple state) the path's general Jones matrix, and with a ghost path (16) both, to be added
+        incoherently (the ghost is zero where it has none)."""
+        if len(state) == 16:
+            return jones.Incoherent((self.jones(state[:8], blocked), _biquaternion(state[8:])))
         if len(state) == 8:
-            return jones.Biquaternion((tuple(dr.select(blocked, 0.0, x) for x in state[:4]),
-                                       tuple(dr.select(blocked, 0.0, x) for x in state[4:])))
+            return _biquaternion(tuple(dr.select(blocked, 0.0, x) for x in state))
         return su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in self.decision.method.finish(state)))
 
     def _render_pixel_sums(self, scene, sensor, seed, spp):
@@ -357,11 +372,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             path = self.walk_refracted(scene, ray, prepared, active, seeds)
             ghost = None
             if self.max_bounces > 0:
-                ghost = self.walk_refracted(scene, ray, prepared, active, mi.UInt32(sampler.next_1d() * 4294967296.0),
-                                            self.max_bounces)
-                # The path without partial reflections is the transmitted one, already counted.
-                ghost = self.jones(tuple(ghost.jones[0]) + tuple(ghost.jones[1]),
-                                   ghost.blocked | (ghost.reflections == 0))
+                ghost = _biquaternion(self._ghost_state(scene, ray, prepared, mi.UInt32(sampler.next_1d() * 4294967296.0),
+                                                        active))
             main, aovs = self.outputs(path.stress, path.fringe, path.blocked, path.length, path.jones, ghost)
             return main, mi.Bool(True), aovs, None
         if mode == dr.ADMode.Primal:
@@ -400,17 +412,15 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         setup = self._prepared_now.setup
         q = self.jones(state, blocked)
         matrix = q if path_jones is None else self.jones(tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
+        if ghost is not None:
+            matrix = jones.Incoherent((matrix, ghost))
         delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
-
-        def intensity(scope):
-            seen = scope.intensity(matrix)
-            return radiance * (seen if ghost is None else seen + scope.intensity(ghost))
         aovs = list(q) + [delta, theta, gamma]
-        aovs += [intensity(scope) for scope in MEASUREMENTS.values()]
+        aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        return mi.Spectrum(intensity(setup.polariscope)), aovs
+        return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     @dr.syntax
     def walk(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
@@ -502,6 +512,14 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         return refraction.trace(scene, ray, prepared.setup, prepared.decision.method, prepared.decision.step_size,
                                 seeds, active, self.max_crossings, RaySegment, bounces)
 
+    def _ghost_state(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, seeds: mi.UInt32,
+                     active: mi.Bool = True) -> tuple:
+        """A sampled path of up to ``max_bounces`` partial reflections: its Jones matrix as 8 numbers, zero where
+        it took none (that is the transmitted path, counted on its own) or brings no light."""
+        ghost = self.walk_refracted(scene, ray, prepared, mi.Bool(active), seeds, self.max_bounces)
+        dark = ghost.blocked | (ghost.reflections == 0)
+        return tuple(dr.select(dark, 0.0, x) for x in tuple(ghost.jones[0]) + tuple(ghost.jones[1]))
+
     def replay(self, scene: mi.Scene, ray: mi.Ray3f, prepared: Prepared, active: mi.Bool, seeds: mi.UInt32,
                state: tuple, state_grad: tuple) -> None:
         """Adjoint pass: march again, back-propagating ``state_grad`` into every step's field lookups."""
@@ -530,6 +548,15 @@ class RaySegment:
 def _ray_seeds(seed, count):
     # Opaque: a literal seed would be compiled into the kernel, rebuilding it for every new seed.
     return mi.sample_tea_32(dr.opaque(mi.UInt32, seed), dr.arange(mi.UInt32, count))[0]
+
+
+def _ghost_seeds(seed, count):
+    """Per ray, the ghost walk's own stream (apart from the transmitted walk's jitter)."""
+    return mi.sample_tea_32(dr.opaque(mi.UInt32, seed), dr.arange(mi.UInt32, count))[1]
+
+
+def _biquaternion(values: tuple) -> jones.Biquaternion:
+    return jones.Biquaternion((tuple(values[:4]), tuple(values[4:])))
 
 
 mi.register_integrator("photoelastic", lambda props: PhotoelasticIntegrator(props))

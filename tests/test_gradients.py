@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mi_nest.physics import jones
 from mi_nest.reconstruct.fields import FieldConfig, make_field
 from scenes import box, scene
 
@@ -50,7 +51,8 @@ def _field(kind):
                                           ("mlp", "product"), ("mlp", "linear")])
 def test_replayed_gradient_matches_finite_differences(kind, method):
     loaded = _specimen()
-    integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True})
+    integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True,
+                               "max_bounces": 0})
     field = _field(kind)
     rays, weights = _batch()
 
@@ -168,7 +170,8 @@ def test_replayed_gradient_through_refracting_surfaces_matches_finite_difference
              "bsdf": {"type": "dielectric", "int_ior": 1.55, "ext_ior": 1.0},
              "interior": {"type": "stress", "model": "uniform", "stress_optic_coefficient": 50.0}}
     loaded = scene([glass], res=2, view=2.5)
-    integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True})
+    integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True,
+                               "max_bounces": 0})
     field = _field("grid")
     rays, _ = _batch()
     weights = [mi.Float(w) for w in np.random.default_rng(11).normal(size=(16, RAYS)).astype(np.float32)]
@@ -179,6 +182,33 @@ def test_replayed_gradient_through_refracting_surfaces_matches_finite_difference
     gradients, checked, state = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
     assert checked == 6 and len(state) == 8          # the path's general Jones matrix
     assert np.abs(gradients["grid"]).max() > 1e-3
+
+
+@pytest.mark.parametrize("part", ["ghost", "both"])
+def test_replayed_gradient_of_the_ghosts_matches_finite_differences(part):
+    """With ``max_bounces`` a ray batch carries a sampled ghost path (partly reflected) beside the transmitted
+    one; the replay walks it again with the same choices. n = 3 (R = 0.25 at normal incidence): the ghosts
+    are strong enough to be differentiated on their own."""
+    from mi_nest.reconstruct.losses import intensities
+    glass = {"type": "cube",
+             "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 20.0).scale([2.0, 2.0, 2.0]),
+             "bsdf": {"type": "dielectric", "int_ior": 3.0, "ext_ior": 1.0},
+             "interior": {"type": "stress", "model": "uniform", "stress_optic_coefficient": 50.0}}
+    loaded = scene([glass], res=2, view=2.5)
+    integrator = mi.load_dict({"type": "photoelastic", "step_size": 0.4, "jitter": True, "max_bounces": 2})
+    field = _field("grid")
+    rays, _ = _batch()
+    weights = [mi.Float(w) for w in np.random.default_rng(12).normal(size=(16, RAYS)).astype(np.float32)]
+
+    def loss(matrix):
+        assert isinstance(matrix, jones.Incoherent)
+        return sum(dr.sum(w * x) for w, x in zip(weights, intensities(matrix[1] if part == "ghost" else matrix)))
+
+    gradients, checked, state = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
+    assert checked == 6 and len(state) == 16        # the transmitted path's and the ghost's Jones matrices
+    ghost = np.array(state[8:])
+    assert 0 < np.count_nonzero(np.abs(ghost).sum(axis=0)) < RAYS     # some rays took a partial reflection
+    assert np.abs(gradients["grid"]).max() > 1e-4
 
 
 def test_linear_gradients_through_refracting_surfaces_are_refused():

@@ -122,6 +122,9 @@ class Hit(NamedTuple):
     launch: mi.Point3f          # where the next query starts
 
 
+# Partial reflections followed per ghost path unless a scene says otherwise: following more changes fewer than 1%
+# of the specimen's pixel values by more than one 8-bit level (experiments/ghosts.py, docs/refraction.md).
+DEFAULT_MAX_BOUNCES = 4
 # Where a sampled walk may follow a partial reflection, the share of its rays that do. Ghost paths are weak
 # (R^2 ~ 0.2% of the light at n = 1.55) but every crossing branches: an even split samples the few-bounce paths
 # that carry them far more often than Fresnel-proportional choices would (which spend nearly every ray on the
@@ -286,7 +289,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
 @dr.syntax
 def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
            active: mi.Bool, max_crossings: int, make_segment, total: jones.Biquaternion,
-           grad: jones.Biquaternion) -> None:
+           grad: jones.Biquaternion, bounces: int = 0) -> None:
     """The adjoint of :func:`trace`: back-propagate ``grad`` (the adjoint of the path's Jones matrix ``total``)
     into every segment's field lookups.
 
@@ -295,7 +298,8 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
     again, primal) and ``R = (L Q)^-1 M``. The segment's product receives the
     adjoint of ``q`` in ``L q R`` and replays its steps as in a straight walk.
     The interfaces are fixed (known geometry and indices): only the stress is
-    differentiated.
+    differentiated. A sampled path (``bounces``) is walked again with the same
+    choices (the same seeds, crossings and reflections taken).
     """
     d, u, v = _start(ray, setup)
     origin = mi.Point3f(ray.o)
@@ -304,12 +308,14 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
     medium = mi.UInt32(0)
     before = jones.from_quaternion(su2.identity(mi.Float(0)))
     crossings = mi.UInt32(0)
+    reflections = mi.UInt32(0)
     active = mi.Bool(active)
 
     while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment, total, grad]):
         si = _query(scene, launch, d, reach, ray, active)
         active &= ~(si.is_valid() & (crossings >= max_crossings))
-        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active)
+        crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
+                             reflection_choice(seeds, crossings, reflections, bounces) if bounces > 0 else None)
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         product, _ = method.march(segment, setup)
@@ -317,6 +323,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         after = jones.multiply(jones.inverse(with_segment), total)
         method.replay(method.replay_start(product), jones.unitary_adjoint(before, after, grad), segment, setup)
         before = jones.multiply(with_segment, crossing.matrix)
+        reflections += dr.select(crossing.partial, 1, 0)
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~crossing.blocked

@@ -24,6 +24,11 @@ from .backend import Array, ops
 Biquaternion = NewType("Biquaternion", tuple)
 
 
+class Incoherent(tuple):
+    """The Jones matrices of paths whose intensities add (light is incoherent over their path differences): a
+    refracted ray's transmitted path and its ghost."""
+
+
 def from_quaternion(q: su2.Quaternion) -> Biquaternion:
     """The unitary ``q`` as a general Jones matrix."""
     return Biquaternion((tuple(q), tuple(x * 0.0 for x in q)))

@@ -94,7 +94,10 @@ class Polariscope:
 
     def intensity(self, q: Sequence[Array]) -> Array:
         """Detected intensity for the Jones quaternion ``q``, or for a general Jones matrix (a refracted
-        path's: a pair of quaternions, jones.py), on NumPy or Dr.Jit arrays."""
+        path's: a pair of quaternions, jones.py), or the sum over paths that add incoherently
+        (``jones.Incoherent``), on NumPy or Dr.Jit arrays."""
+        if isinstance(q, jones.Incoherent):
+            return sum((self.intensity(path) for path in q[1:]), self.intensity(q[0]))
         if len(q) == 2:
             return jones.intensity(self.coefficients(), q)
         total = 0.0
