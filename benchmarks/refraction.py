@@ -43,14 +43,13 @@ def models(bounces):
             f"with ghosts ({bounces})": {"ior": 1.55, "max_bounces": bounces}}
 
 
-def render_round(name, defines, res, spp):
-    scene = mi_nest.load_scene(name, res=res, spp=spp, **defines)
+def render_round(scene, spp):
+    """Seconds of one render of a loaded scene, and the ray-steps its transmitted walk marched."""
     start = time.perf_counter()
     result = mi_nest.render(scene, progress=False)
     seconds = time.perf_counter() - start
-    step = scene.integrator().step_size
-    steps = float(np.asarray(result.channels["path.length"], dtype=np.float64).sum()) * spp / step
-    return seconds, steps
+    steps = float(np.asarray(result.channels["path.length"], dtype=np.float64).sum()) * spp
+    return seconds, steps / scene.integrator().step_size
 
 
 def reconstruction_rate(name, defines, data, iterations):
@@ -73,13 +72,15 @@ def main():
     print(f"CPU: {cpu_name()}")
     variants = models(args.max_bounces)
     for name, scene_defines in SCENES.items():
-        for label, defines in variants.items():
-            render_round(name, {**scene_defines, **defines}, args.res, args.spp)      # compiles
+        scenes = {label: mi_nest.load_scene(name, res=args.res, spp=args.spp, **scene_defines, **defines)
+                  for label, defines in variants.items()}
+        for scene in scenes.values():
+            render_round(scene, args.spp)            # compiles
         times = {label: [] for label in variants}
         steps = {}
         for _ in range(args.rounds):
-            for label, defines in variants.items():
-                seconds, steps[label] = render_round(name, {**scene_defines, **defines}, args.res, args.spp)
+            for label, scene in scenes.items():
+                seconds, steps[label] = render_round(scene, args.spp)
                 times[label].append(seconds)
         straight = statistics.median(times["straight"])
         print(f"\n{name}: render {args.res}x{args.res}, {args.spp} spp, median of {args.rounds}")

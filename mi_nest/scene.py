@@ -96,9 +96,9 @@ def _load_robust(path, defaults):
 
 def _without_traceback(message):
     """Mitsuba embeds a plugin's Python traceback in its error; keep location and cause."""
-    lines = [line for line in message.splitlines()
-             if not line.startswith(("Traceback (most recent call last)", "  File "))]
-    return " ".join(line.strip() for line in lines if line.strip())
+    lines = [line.replace("Traceback (most recent call last):", "") for line in message.splitlines()
+             if not line.startswith("  File ")]
+    return " ".join(" ".join(line.split()) for line in lines if line.strip())
 
 
 def photoelastic_integrator(scene: mi.Scene) -> PhotoelasticIntegrator:

@@ -126,9 +126,10 @@ class Hit(NamedTuple):
 # of the specimen's pixel values by more than one 8-bit level (experiments/ghosts.py, docs/refraction.md).
 DEFAULT_MAX_BOUNCES = 4
 # Where a sampled walk may follow a partial reflection, the share of its rays that do. Ghost paths are weak
-# (R^2 ~ 0.2% of the light at n = 1.55) but every crossing branches: an even split samples the few-bounce paths
-# that carry them far more often than Fresnel-proportional choices would (which spend nearly every ray on the
-# transmitted path, already counted exactly).
+# (R^2 ~ 0.2% of the light at n = 1.55 at normal incidence) but every crossing branches. Fresnel-guided shares
+# (the crossing's mean reflectance within [0.1, 0.9], [0.25, 0.75] or [0.35, 0.65]) were measured against this
+# even split on the disk at 30 degrees and edge-on and on the kitten: pixel noise from 34% higher to 17% lower,
+# no better overall than the simplest choice.
 REFLECTION_PROBABILITY = 0.5
 # The choice's value where no partial reflection may be taken (no bounces left): transmitted, weight 1.
 NO_CHOICE = 2.0
