@@ -313,6 +313,15 @@ def test_simulate_renders_the_bent_paths_and_reconstruction_traces_the_same(tmp_
         truth = specimen_shapes(scene)[0].interior_medium().field
         losses[label] = dataset_loss(scene, transmitted, truth, scene.integrator(), split="train", mask=None)
     assert losses["straight"] > 2.5 * losses["refracted"], losses
+    # The reconstruction renders with the scene integrator's surface settings: a dataset simulated with ghosts
+    # is fitted with them, one without, without.
+    for bounces in (0, 2):
+        scene = mi_nest.load_scene("disk_compression", **{**transmitted.index["source"]["defines"],
+                                                          "max_bounces": bounces})
+        scene.integrator().max_crossings = 16
+        result = mi_nest.optimize(scene, transmitted, iterations=2, kind="grid", resolution=8, progress=False)
+        integrator = result.integrator(scene)
+        assert (integrator.max_bounces, integrator.max_crossings) == (bounces, 16)
 
 
 def test_rays_bent_past_a_finite_panel_bring_no_light():

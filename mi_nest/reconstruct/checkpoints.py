@@ -149,8 +149,9 @@ class Reconstruction:
         return cls(load_field(directory / "field.npz"), OptimizeConfig.from_dict(record["config"]),
                    record["history"], record["metrics"], record["seconds"])
 
-    def integrator(self) -> mi.Integrator:
-        return make_integrator(self.config, self.field)
+    def integrator(self, scene: mi.Scene) -> mi.Integrator:
+        """The integrator this reconstruction renders ``scene`` with."""
+        return make_integrator(self.config, self.field, scene)
 
     def render(self, scene: mi.Scene, **options) -> RenderResult:
         """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""

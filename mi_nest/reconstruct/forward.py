@@ -7,9 +7,15 @@ from .config import OptimizeConfig
 from .fields import TrainableField, grid_shape
 
 
-def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method: str | None = None) -> mi.Integrator:
-    """The photoelastic integrator a reconstruction renders with (jittered steps, no bias from a fixed grid);
-    ``method`` overrides the config's forward model."""
+# What the scene's own integrator decides about its surfaces, which a reconstruction keeps: the data were
+# rendered so (a dataset simulated with ghosts is fitted with them).
+SURFACE_SETTINGS = ("max_crossings", "max_bounces")
+
+
+def make_integrator(config: OptimizeConfig, stress_field: TrainableField, scene: mi.Scene,
+                    method: str | None = None) -> mi.Integrator:
+    """The photoelastic integrator a reconstruction renders ``scene`` with (jittered steps, no bias from a fixed
+    grid; the scene integrator's ``SURFACE_SETTINGS``); ``method`` overrides the config's forward model."""
     step = config.model.step_size
     if step is None:
         extent = stress_field.bbox_max - stress_field.bbox_min
@@ -19,4 +25,7 @@ def make_integrator(config: OptimizeConfig, stress_field: TrainableField, method
             step = float(extent.max()) / 64.0
     method = method or config.model.method
     method = "linear" if method == "two-step" else method
-    return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True})
+    surfaces = {name: getattr(scene.integrator(), name) for name in SURFACE_SETTINGS
+                if hasattr(scene.integrator(), name)}
+    return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True,
+                         **surfaces})

@@ -113,7 +113,7 @@ class Run:
         return self.config.model.method == "two-step" or self.progress() < self.config.schedule.warm_start
 
     def integrator(self) -> mi.Integrator:
-        return make_integrator(self.config, self.field, "two-step" if self.fitting_retardance() else None)
+        return make_integrator(self.config, self.field, self.scene, "two-step" if self.fitting_retardance() else None)
 
     def learning_rate(self) -> float:
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
