@@ -74,8 +74,8 @@ def main():
     print(f"CPU: {cpu_name()}")
     variants = models(args.max_bounces)
     for name, scene_defines in SCENES.items():
-        scenes = {label: mi_nest.load_scene(name, res=args.res, spp=args.spp, step=args.step, **scene_defines, **defines)
-                  for label, defines in variants.items()}
+        scenes = {label: mi_nest.load_scene(name, res=args.res, spp=args.spp, step=args.step, **scene_defines,
+                                            **defines) for label, defines in variants.items()}
         for scene in scenes.values():
             render_round(scene, args.spp)            # compiles
         times = {label: [] for label in variants}

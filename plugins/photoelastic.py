@@ -324,8 +324,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                                               (8, _ghost_seeds(seed, count), self.max_bounces))[:len(total) // 8]:
                     refraction.replay(scene, rays, prepared.setup, prepared.decision.method,
                                       prepared.decision.step_size, seeds, mi.Bool(True), self.max_crossings,
-                                      RaySegment, jones.Biquaternion((total[start:start + 4], total[start + 4:start + 8])),
-                                      jones.Biquaternion((grad[start:start + 4], grad[start + 4:start + 8])), bounces)
+                                      RaySegment, _biquaternion(total[start:start + 8]),
+                                      _biquaternion(grad[start:start + 8]), bounces)
                     # Each replay's accumulation into the field's gradients runs before the next is traced: without
                     # it, the second replay's share was lost in about one run in three (Dr.Jit 1.x, LLVM).
                     dr.eval()
@@ -372,8 +372,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             path = self.walk_refracted(scene, ray, prepared, active, seeds)
             ghost = None
             if self.max_bounces > 0:
-                ghost = _biquaternion(self._ghost_state(scene, ray, prepared, mi.UInt32(sampler.next_1d() * 4294967296.0),
-                                                        active))
+                ghost_seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
+                ghost = _biquaternion(self._ghost_state(scene, ray, prepared, ghost_seeds, active))
             main, aovs = self.outputs(path.stress, path.fringe, path.blocked, path.length, path.jones, ghost)
             return main, mi.Bool(True), aovs, None
         if mode == dr.ADMode.Primal:

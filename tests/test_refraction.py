@@ -463,8 +463,8 @@ def test_an_oblique_slabs_ghosts_follow_s_and_p_apart():
                        for j in range(30))
         _near(channels[name], expected, name)
     for polariser, share in ((0.0, (1 - r_s) / (1 + r_s)), (90.0, (1 - r_p) / (1 + r_p))):
-        linear = _with_bounces(_slab(n, tilt, stress={}, half_width=30.0), 24, light={"polarizer": polariser, "qwp": None},
-                               sensor={"qwp": None, "analyzer": polariser})
+        linear = _with_bounces(_slab(n, tilt, stress={}, half_width=30.0), 24,
+                               light={"polarizer": polariser, "qwp": None}, sensor={"qwp": None, "analyzer": polariser})
         _near(linear["Y"], share, f"polariser {polariser}")
 
 
