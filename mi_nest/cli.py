@@ -42,10 +42,11 @@ def _parser():
     demo.add_argument("--iterations", type=int, default=DEMO_ITERATIONS,
                       help=f"reconstruction iterations (default: {DEMO_ITERATIONS})")
 
-    export = commands.add_parser("export", help="write a stress field as VTK (.vtu) for ParaView")
+    export = commands.add_parser("export", help="write a stress field as VTK (.vtu) for ParaView or as 3D-TSV "
+                                                 "(.TSV) for its stress lines")
     export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti), "
                                       "or a scene (XML file or shipped name) whose specimens are sampled on grids")
-    export.add_argument("-o", "--output", required=True, help="output .vtu path")
+    export.add_argument("-o", "--output", required=True, help="output path: .vtu or .TSV")
     export.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
     export.add_argument("--resolution", type=int, default=64,
@@ -174,14 +175,16 @@ def _demo(args):
 
 
 def _export(args):
-    from .fields.sources import export_vtu, is_stress_file, stress_file
+    from .fields.sources import export_file, is_stress_file, stress_file
+    from .io import export_format
+    export_format(args.output)          # refused before a scene is loaded
     if is_stress_file(args.field):
-        summary = export_vtu(stress_file(args.field), args.output, args.resolution)
+        summary = export_file(stress_file(args.field), args.output, args.resolution)
         print(f"wrote {Path(args.output).resolve()} ({summary})")
         return
     from . import load_scene
-    from .export import export_scene_vtu
-    for path in export_scene_vtu(load_scene(args.field, **dict(args.defines)), args.output, args.resolution):
+    from .export import export_scene
+    for path in export_scene(load_scene(args.field, **dict(args.defines)), args.output, args.resolution):
         print(f"wrote {path.resolve()}")
 
 

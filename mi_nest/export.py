@@ -1,4 +1,4 @@
-"""Stress fields of a loaded scene, sampled on grids and written for ParaView."""
+"""Stress fields of a loaded scene, sampled on grids and written for ParaView (``.vtu``) or 3D-TSV (``.TSV``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,9 +6,12 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
+from . import occupancy
 from .arguments import whole_number
+from .io import export_format
 from .io.grid import StressGrid, grid_nodes
-from .io.vtk import write_grid_vtu
+from .io.tsv import write_stress_file
+from .io.vtk import grid_hexahedra, write_grid_vtu
 from .scene import specimen_shapes
 
 
@@ -33,12 +36,32 @@ def specimen_grids(scene: mi.Scene, resolution: int = 64) -> list[StressGrid]:
     return grids
 
 
-def export_scene_vtu(scene: mi.Scene, output: str | Path, resolution: int = 64) -> list[Path]:
-    """Write each specimen's field as ``output`` (``output-<i>.vtu`` when there are several)."""
-    grids = specimen_grids(scene, resolution)
+def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64) -> list[Path]:
+    """Write each specimen's field as ``output`` (``output-<i>.<suffix>`` when there are several): ``.vtu``
+    over its bounding box, ``.TSV`` as the hexahedra of that grid whose centres lie inside the specimen (what
+    3D-TSV traces stress lines through)."""
     output = Path(output)
+    kind = export_format(output)
+    grids = specimen_grids(scene, resolution)
     paths = [output] if len(grids) == 1 else [output.with_name(f"{output.stem}-{i}{output.suffix}")
                                               for i in range(len(grids))]
-    for grid, path in zip(grids, paths):
-        write_grid_vtu(path, grid)
+    for shape, grid, path in zip(specimen_shapes(scene), grids, paths):
+        if kind == ".vtu":
+            write_grid_vtu(path, grid)
+        else:
+            write_stress_file(path, *_inside_hexahedra(scene, shape, grid))
     return paths
+
+
+def _inside_hexahedra(scene, shape, grid):
+    """``(nodes, hexahedra, stress)``: the grid's cells whose centres lie inside ``shape``, and their nodes."""
+    nz, ny, nx = grid.stress.shape[:3]
+    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
+    cells = grid_hexahedra((nx, ny, nz))
+    keep = occupancy.inside(scene, [shape], nodes[cells].mean(axis=1))
+    if not keep.any():
+        raise ValueError(f"no cell of a {nx}x{ny}x{nz} grid lies inside specimen '{shape.id()}': raise the "
+                         "resolution")
+    cells = cells[keep]
+    used, renumbered = np.unique(cells, return_inverse=True)
+    return nodes[used], renumbered.reshape(cells.shape), grid.stress.reshape(-1, 6)[used]

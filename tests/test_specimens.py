@@ -10,7 +10,7 @@ import trimesh
 
 import mi_nest
 from mi_nest.fields.mesh import TetMeshStress
-from mi_nest.fields.sources import export_vtu, grid_from_file
+from mi_nest.fields.sources import export_file, grid_from_file
 from mi_nest.io.cells import MeshError
 from mi_nest.io.mesh import save_mesh_stress
 from mi_nest.io.tsv import TsvFileError, read_stress_file, write_stress_file
@@ -75,7 +75,7 @@ def test_uniaxial_field_round_trips_through_3d_tsv_and_renders_its_closed_form(t
                                atol=1e-4)
     np.testing.assert_allclose(channels["char.theta"], math.radians(angle) % math.pi, atol=1e-4)
 
-    export_vtu(path, tmp_path / "uniaxial.vtu")
+    export_file(path, tmp_path / "uniaxial.vtu")
     exported = meshio.read(tmp_path / "uniaxial.vtu")
     assert exported.cells[0].type == "hexahedron" and len(exported.cells[0].data) == len(hexes)
     tensor = exported.point_data["stress"].reshape(-1, 3, 3)
@@ -164,8 +164,8 @@ def test_scene_fields_export_to_vtk_including_analytic_models(tmp_path, capsys):
     difference = exported.point_data["sigma_1_minus_sigma_3"][centre]
     assert difference == pytest.approx(8 * 500 / (math.pi * 40 * 6), rel=1e-5)
     with pytest.raises(ValueError, match="no shape with a stress medium"):
-        from mi_nest.export import export_scene_vtu
-        export_scene_vtu(mi.load_dict({"type": "scene", "s": {"type": "cube"}}), tmp_path / "none.vtu")
+        from mi_nest.export import export_scene
+        export_scene(mi.load_dict({"type": "scene", "s": {"type": "cube"}}), tmp_path / "none.vtu")
 
 
 def test_carti_grid_orientation_order_and_rendering(tmp_path):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.carti import read_carti_file
-from ..io.grid import GridFileError, StressGrid, load_stress_grid
+from ..io.grid import GridFileError, StressGrid, grid_nodes, load_stress_grid
 from ..io.mesh import is_mesh_npz, load_mesh_arrays
 from ..io.tsv import TsvModel, read_stress_file
 from .mesh import TetMeshStress
@@ -86,17 +86,32 @@ def _mesh_cached(path, mtime_ns, size):
     return TetMeshStress.from_cells(*mesh_arrays(path))
 
 
-def export_vtu(path: str | Path, output: str | Path, resolution: int = 64) -> str:
-    """Write any stress file as ``.vtu``: meshes with their own cells, grids as hexahedra."""
-    from ..io.vtk import write_grid_vtu, write_mesh_vtu
+def export_file(path: str | Path, output: str | Path, resolution: int = 64) -> str:
+    """Write any stress file as ``.vtu`` or 3D-TSV ``.TSV`` (by ``output``'s suffix): meshes with their own
+    cells (and a 3D-TSV file's boundary conditions), grids as hexahedra."""
+    from ..io import export_format
+    from ..io.tsv import write_stress_file
+    from ..io.vtk import grid_hexahedra, write_mesh_vtu
+    kind = export_format(output)
+    boundary = {}
     if Path(path).is_file() and is_mesh_file(path):
         nodes, cells, stress = mesh_arrays(path)
         TetMeshStress.from_cells(nodes, cells, stress)   # validates the mesh before writing it out
+        if is_tsv_file(path):
+            model = read_tsv_model(path)
+            boundary = {"node_forces": model.node_forces, "fixed_nodes": model.fixed_nodes}
+        summary = f"{len(nodes)} nodes, {len(cells)} cells"
+    else:
+        grid = grid_from_file(path, resolution)
+        nz, ny, nx = grid.stress.shape[:3]
+        nodes, cells = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz)), grid_hexahedra((nx, ny, nz))
+        stress = grid.stress.reshape(-1, 6)
+        summary = f"grid {nx}x{ny}x{nz}"
+    if kind == ".vtu":
         write_mesh_vtu(output, nodes, cells, stress)
-        return f"{len(nodes)} nodes, {len(cells)} cells"
-    grid = grid_from_file(path, resolution)
-    write_grid_vtu(output, grid)
-    return "grid " + "x".join(str(n) for n in grid.stress.shape[2::-1])
+    else:
+        write_stress_file(output, nodes, cells, stress, **boundary)
+    return summary
 
 
 def grid_from_file(path: str | Path, resolution: int = 64) -> StressGrid:

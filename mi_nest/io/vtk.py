@@ -1,8 +1,11 @@
 """Stress fields as VTK unstructured grids (``.vtu`` via meshio) for ParaView.
 
 Point data: ``stress`` (the full tensor, 9 components, row-major), the principal
-stresses ``sigma_1 >= sigma_2 >= sigma_3``, their difference ``sigma_1 - sigma_3``
-and the von Mises stress.
+stresses ``sigma_1 >= sigma_2 >= sigma_3`` and their unit directions
+``sigma_1_direction``... (vectors: ParaView's Glyph and Stream Tracer filters take
+them; a direction is a line, signed by its largest component, see
+``physics.tensors.principal_axes``), their difference ``sigma_1 - sigma_3`` and the
+von Mises stress.
 """
 from __future__ import annotations
 
@@ -10,15 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..physics.tensors import principal_stresses, stress_matrices, von_mises
+from ..physics.tensors import principal_axes, stress_matrices, von_mises
 from .grid import StressGrid, grid_nodes
 
 
 def point_data(stress6: np.ndarray) -> dict[str, np.ndarray]:
-    principal = principal_stresses(stress6)
-    return {"stress": stress_matrices(stress6).reshape(-1, 9), "sigma_1": principal[:, 0],
-            "sigma_2": principal[:, 1], "sigma_3": principal[:, 2],
-            "sigma_1_minus_sigma_3": principal[:, 0] - principal[:, 2], "von_mises": von_mises(stress6)}
+    principal, directions = principal_axes(stress6)
+    data = {"stress": stress_matrices(stress6).reshape(-1, 9)}
+    for k in range(3):
+        data[f"sigma_{k + 1}"] = principal[:, k]
+        data[f"sigma_{k + 1}_direction"] = directions[:, k]
+    return {**data, "sigma_1_minus_sigma_3": principal[:, 0] - principal[:, 2], "von_mises": von_mises(stress6)}
 
 
 def write_mesh_vtu(path: str | Path, nodes: np.ndarray, cells: np.ndarray, stress6: np.ndarray) -> None:
@@ -30,13 +35,18 @@ def write_mesh_vtu(path: str | Path, nodes: np.ndarray, cells: np.ndarray, stres
         str(Path(path)))
 
 
+def grid_hexahedra(counts: tuple[int, int, int]) -> np.ndarray:
+    """``(M, 8)`` hexahedra (VTK order) between the nodes of a grid of ``(nx, ny, nz)`` nodes, x fastest."""
+    nx, ny, nz = counts
+    index = np.arange(nx * ny * nz).reshape(nz, ny, nx)
+    corner = index[:-1, :-1, :-1].ravel()
+    dx, dy, dz = 1, nx, nx * ny
+    return np.stack([corner, corner + dx, corner + dx + dy, corner + dy,
+                     corner + dz, corner + dz + dx, corner + dz + dx + dy, corner + dz + dy], axis=1)
+
+
 def write_grid_vtu(path: str | Path, grid: StressGrid) -> None:
     """A :class:`~mi_nest.io.grid.StressGrid` as hexahedral cells between its nodes."""
     nz, ny, nx = grid.stress.shape[:3]
     nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
-    index = np.arange(nx * ny * nz).reshape(nz, ny, nx)
-    corner = index[:-1, :-1, :-1].ravel()
-    dx, dy, dz = 1, nx, nx * ny
-    cells = np.stack([corner, corner + dx, corner + dx + dy, corner + dy,
-                      corner + dz, corner + dz + dx, corner + dz + dx + dy, corner + dz + dy], axis=1)
-    write_mesh_vtu(path, nodes, cells, grid.stress.reshape(-1, 6))
+    write_mesh_vtu(path, nodes, grid_hexahedra((nx, ny, nz)), grid.stress.reshape(-1, 6))

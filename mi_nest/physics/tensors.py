@@ -59,6 +59,22 @@ def principal_stresses(stress6: np.ndarray) -> np.ndarray:
     return np.linalg.eigvalsh(stress_matrices(stress6))[..., ::-1]
 
 
+def principal_axes(stress6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(values, directions)`` of ``(..., 6)`` tensors: the principal stresses ``(..., 3)``, largest first, and
+    their unit directions ``(..., 3, 3)``, ``directions[..., k, :]`` along ``values[..., k]``.
+
+    A direction is a line, not an arrow: each is signed so that its largest
+    component is positive, which is the same choice wherever the axes turn
+    little (a stream tracer still meets flips where they turn past 45 degrees).
+    Where two principal stresses are equal their directions are any orthonormal
+    pair of that plane.
+    """
+    values, vectors = np.linalg.eigh(stress_matrices(stress6))
+    values, directions = values[..., ::-1], np.swapaxes(vectors[..., ::-1], -1, -2)
+    largest = np.take_along_axis(directions, np.abs(directions).argmax(axis=-1)[..., None], axis=-1)
+    return values, directions * np.where(largest < 0, -1.0, 1.0)
+
+
 def principal_difference(stress6: np.ndarray) -> np.ndarray:
     """``sigma_max - sigma_min`` of ``(..., 6)`` tensors: the 3D principal stress difference."""
     principal = principal_stresses(stress6)
