@@ -56,15 +56,20 @@ def finish(args, rows, results, title):
                    ylabel="relative deviatoric stress error")
 
 
-def dataset(scene, output, rotations, res, defines=None, **settings):
-    """Simulate (or resume) ``scene`` at ``rotations`` x ``rotations``; returns ``(directory, seconds)``."""
-    defines = dict(defines or {})
-    tag = "".join(f"_{k}{v:g}" for k, v in sorted(defines.items()))
+def dataset_directory(scene, output, rotations, res, defines=None, **settings):
+    """Where :func:`dataset` keeps ``scene`` simulated so."""
+    tag = "".join(f"_{k}{v:g}" for k, v in sorted(dict(defines or {}).items()))
     tag += "".join(f"_{k}{v:g}" for k, v in sorted(settings.items()) if k != "camera")
     camera = settings.get("camera")
     if camera is not None and camera.read_noise:
         tag += f"_noise{camera.read_noise:g}"
-    directory = Path(output) / "data" / f"{scene}{tag}_{rotations}x{rotations}_{res}"
+    return Path(output) / "data" / f"{scene}{tag}_{rotations}x{rotations}_{res}"
+
+
+def dataset(scene, output, rotations, res, defines=None, **settings):
+    """Simulate (or resume) ``scene`` at ``rotations`` x ``rotations``; returns ``(directory, seconds)``."""
+    defines = dict(defines or {})
+    directory = dataset_directory(scene, output, rotations, res, defines, **settings)
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)

@@ -114,7 +114,10 @@ def main():
         for surrounding in args.surroundings:
             indices = {"ior": PART, "ext_ior": SURROUNDINGS[surrounding]}
             defines = {**scene_defines, **indices, "max_bounces": args.max_bounces}
-            data, simulated = common.dataset(name, output, rotations, res, defines)
+            if args.floors:     # the datasets as simulated, whichever code simulated them
+                data, simulated = common.dataset_directory(name, output, rotations, res, defines), 0.0
+            else:
+                data, simulated = common.dataset(name, output, rotations, res, defines)
             models = [("straight", {**scene_defines, "ior": 1.0, "ext_ior": 1.0}),
                       ("refraction-aware", {**defines, "max_bounces": 0})]
             if args.max_bounces:
