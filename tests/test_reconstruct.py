@@ -1,6 +1,7 @@
 """Reconstruction: trainable fields, metrics, the optimiser (smoke, resume, divergence, options), CLI."""
 import json
 from dataclasses import replace
+from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -324,6 +325,11 @@ def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     assert 0 < result.metrics["test_psnr"] < 100
     saved = json.loads((tmp_path / "run" / "reconstruction.json").read_text())
     assert saved["metrics"]["deviatoric_error"] == result.metrics["deviatoric_error"]
+    # It says what it was reconstructed from, so that its views can find the scene again (issue 21).
+    assert saved["source"]["dataset"] == str(Path(tiny_dataset).resolve())
+    assert saved["source"]["scene"] == scene.id()
+    assert saved["source"]["dataset_source"]["scene"] == mi_nest.Dataset(tiny_dataset).index["source"]["scene"]
+    assert Reconstruction.load(tmp_path / "run").source == saved["source"]
     # The scene gets its own field back.
     assert type(scene.shapes()[0].interior_medium().field).__name__ == "DiskCompressionField"
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
 import drjit as dr
@@ -113,6 +113,7 @@ class Reconstruction:
     history: list                    # {iteration, loss, learning_rate, seconds}
     metrics: dict
     seconds: float
+    source: dict = dataclass_field(default_factory=dict)   # the dataset and scene it was reconstructed from
 
     def describe(self) -> str:
         lines = [f"{self.field!r}: {self.field.parameter_count()} parameters, {len(self.history)} iterations in "
@@ -134,7 +135,7 @@ class Reconstruction:
             _save_npz(tmp, self.field.state())
         record = {"config": self.config.to_dict(), "metrics": self.metrics, "seconds": self.seconds,
                   "field": self.field.describe(), "parameters": self.field.parameter_count(),
-                  "history": self.history}
+                  "source": self.source, "history": self.history}
         with atomic_path(directory / "reconstruction.json", ".json") as tmp:
             Path(tmp).write_text(json.dumps(record, indent=1))
         return directory
@@ -147,7 +148,7 @@ class Reconstruction:
                 raise FileNotFoundError(f"{directory} is not a reconstruction: {name} missing")
         record = json.loads((directory / "reconstruction.json").read_text())
         return cls(load_field(directory / "field.npz"), OptimizeConfig.from_dict(record["config"]),
-                   record["history"], record["metrics"], record["seconds"])
+                   record["history"], record["metrics"], record["seconds"], record.get("source", {}))
 
     def integrator(self, scene: mi.Scene) -> mi.Integrator:
         """The integrator this reconstruction renders ``scene`` with."""

@@ -360,7 +360,9 @@ class Run:
         if self.iterates_averaged:
             self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
             self._require_sane_field()      # the last checkpoint checked the last iterate, not their mean
-        return Reconstruction(self.field, self.config, self.history, {}, self.seconds)
+        return Reconstruction(self.field, self.config, self.history, {}, self.seconds,
+                              {"dataset": str(self.dataset.directory.resolve()), "scene": self.scene.id(),
+                               "dataset_source": self.dataset.index.get("source", {})})
 
 
 def _flat(values):
