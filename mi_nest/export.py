@@ -9,9 +9,9 @@ import numpy as np
 from . import occupancy
 from .arguments import whole_number
 from .io import export_format
-from .io.grid import StressGrid, grid_nodes
+from .io.grid import StressGrid, grid_cells, grid_nodes
 from .io.tsv import write_stress_file
-from .io.vtk import grid_hexahedra, write_grid_vtu
+from .io.vtk import write_grid_vtu
 from .scene import specimen_shapes
 
 
@@ -55,13 +55,12 @@ def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64) -> l
 
 def _inside_hexahedra(scene, shape, grid):
     """``(nodes, hexahedra, stress)``: the grid's cells whose centres lie inside ``shape``, and their nodes."""
-    nz, ny, nx = grid.stress.shape[:3]
-    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
-    cells = grid_hexahedra((nx, ny, nz))
+    nodes, cells, stress = grid_cells(grid)
     keep = occupancy.inside(scene, [shape], nodes[cells].mean(axis=1))
     if not keep.any():
+        nz, ny, nx = grid.stress.shape[:3]
         raise ValueError(f"no cell of a {nx}x{ny}x{nz} grid lies inside specimen '{shape.id()}': raise the "
                          "resolution")
     cells = cells[keep]
     used, renumbered = np.unique(cells, return_inverse=True)
-    return nodes[used], renumbered.reshape(cells.shape), grid.stress.reshape(-1, 6)[used]
+    return nodes[used], renumbered.reshape(cells.shape), stress[used]

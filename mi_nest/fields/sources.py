@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.carti import read_carti_file
-from ..io.grid import GridFileError, StressGrid, grid_nodes, load_stress_grid
+from ..io.grid import GridFileError, StressGrid, grid_cells, load_stress_grid
 from ..io.mesh import is_mesh_npz, load_mesh_arrays
 from ..io.tsv import TsvModel, read_stress_file
 from .mesh import TetMeshStress
@@ -91,7 +91,7 @@ def export_file(path: str | Path, output: str | Path, resolution: int = 64) -> s
     cells (and a 3D-TSV file's boundary conditions), grids as hexahedra."""
     from ..io import export_format
     from ..io.tsv import write_stress_file
-    from ..io.vtk import grid_hexahedra, write_mesh_vtu
+    from ..io.vtk import write_mesh_vtu
     kind = export_format(output)
     boundary = {}
     if Path(path).is_file() and is_mesh_file(path):
@@ -103,10 +103,8 @@ def export_file(path: str | Path, output: str | Path, resolution: int = 64) -> s
         summary = f"{len(nodes)} nodes, {len(cells)} cells"
     else:
         grid = grid_from_file(path, resolution)
-        nz, ny, nx = grid.stress.shape[:3]
-        nodes, cells = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz)), grid_hexahedra((nx, ny, nz))
-        stress = grid.stress.reshape(-1, 6)
-        summary = f"grid {nx}x{ny}x{nz}"
+        nodes, cells, stress = grid_cells(grid)
+        summary = "grid " + "x".join(str(n) for n in grid.stress.shape[2::-1])
     if kind == ".vtu":
         write_mesh_vtu(output, nodes, cells, stress)
     else:

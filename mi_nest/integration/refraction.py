@@ -135,9 +135,12 @@ REFLECTION_PROBABILITY = 0.5
 NO_CHOICE = 2.0
 
 
-def reflection_choice(seeds: mi.UInt32, crossings: mi.UInt32, reflections: mi.UInt32, bounces: int) -> mi.Float:
+def reflection_choice(seeds: mi.UInt32, crossings: mi.UInt32, reflections: mi.UInt32,
+                      bounces: int) -> mi.Float | None:
     """A uniform number per ray and crossing that picks a partial reflection below ``REFLECTION_PROBABILITY``;
-    ``NO_CHOICE`` once ``bounces`` are taken."""
+    ``NO_CHOICE`` once ``bounces`` are taken; None for a walk that follows the transmitted path (no bounces)."""
+    if bounces == 0:
+        return None
     # The high bit keeps these apart from the jitter's streams (sample_tea_32(seeds, crossings)).
     uniform = mi.sample_tea_float32(seeds, crossings | 0x80000000)
     return dr.select(reflections < bounces, uniform, NO_CHOICE)
@@ -257,7 +260,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         blocked |= trapped
         active &= ~trapped
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
-                             reflection_choice(seeds, crossings, reflections, bounces) if bounces > 0 else None)
+                             reflection_choice(seeds, crossings, reflections, bounces))
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         state, fringe = method.trace((state, fringe), segment, setup)
@@ -316,7 +319,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         si = _query(scene, launch, d, reach, ray, active)
         active &= ~(si.is_valid() & (crossings >= max_crossings))
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
-                             reflection_choice(seeds, crossings, reflections, bounces) if bounces > 0 else None)
+                             reflection_choice(seeds, crossings, reflections, bounces))
         segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         product, _ = method.march(segment, setup)

@@ -77,3 +77,15 @@ def grid_nodes(bbox_min: np.ndarray, bbox_max: np.ndarray, counts: Sequence[int]
     axes = [np.linspace(bbox_min[i], bbox_max[i], int(counts[i])) for i in range(3)]
     z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+
+
+def grid_cells(grid: StressGrid) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(nodes, hexahedra, stress)`` of a grid as a mesh: its nodes (:func:`grid_nodes`), the ``(M, 8)``
+    hexahedra between them in VTK order, and the ``(N, 6)`` stress at the nodes."""
+    nz, ny, nx = grid.stress.shape[:3]
+    index = np.arange(nx * ny * nz).reshape(nz, ny, nx)
+    corner = index[:-1, :-1, :-1].ravel()
+    dx, dy, dz = 1, nx, nx * ny
+    cells = np.stack([corner, corner + dx, corner + dx + dy, corner + dy,
+                      corner + dz, corner + dz + dx, corner + dz + dx + dy, corner + dz + dy], axis=1)
+    return grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz)), cells, grid.stress.reshape(-1, 6)

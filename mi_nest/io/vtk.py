@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..physics.tensors import principal_axes, stress_matrices, von_mises
-from .grid import StressGrid, grid_nodes
+from .grid import StressGrid, grid_cells
 
 
 def point_data(stress6: np.ndarray) -> dict[str, np.ndarray]:
@@ -35,18 +35,6 @@ def write_mesh_vtu(path: str | Path, nodes: np.ndarray, cells: np.ndarray, stres
         str(Path(path)))
 
 
-def grid_hexahedra(counts: tuple[int, int, int]) -> np.ndarray:
-    """``(M, 8)`` hexahedra (VTK order) between the nodes of a grid of ``(nx, ny, nz)`` nodes, x fastest."""
-    nx, ny, nz = counts
-    index = np.arange(nx * ny * nz).reshape(nz, ny, nx)
-    corner = index[:-1, :-1, :-1].ravel()
-    dx, dy, dz = 1, nx, nx * ny
-    return np.stack([corner, corner + dx, corner + dx + dy, corner + dy,
-                     corner + dz, corner + dz + dx, corner + dz + dx + dy, corner + dz + dy], axis=1)
-
-
 def write_grid_vtu(path: str | Path, grid: StressGrid) -> None:
     """A :class:`~mi_nest.io.grid.StressGrid` as hexahedral cells between its nodes."""
-    nz, ny, nx = grid.stress.shape[:3]
-    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, (nx, ny, nz))
-    write_mesh_vtu(path, nodes, grid_hexahedra((nx, ny, nz)), grid.stress.reshape(-1, 6))
+    write_mesh_vtu(path, *grid_cells(grid))
