@@ -13,6 +13,8 @@ from . import interrupts
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
 from .reconstruct import DivergenceError
 from .rig.errors import RigError
+from .inside.slicing import REGION_HELP
+from .physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS
 from .scene import parse_define
 
 
@@ -160,8 +162,39 @@ def _parser():
                            help="no specimen of known stress at hand: skip the handedness check; the calibration "
                                 "then records it as unverified and acquire needs --unverified-handedness")
 
+    slicing = commands.add_parser(
+        "slice", help="the fringes of a virtual slice: a slab cut out of the part (stress frozen), seen at normal "
+                      "incidence, with its isochromatic order and isoclinic angle maps",
+        description="SOURCE is a scene (its true field) or the result directory of mi-nest reconstruct (its "
+                    "field in the scene it was reconstructed with). The camera looks back along the normal.")
+    slicing.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
+    slicing.add_argument("--plane", help="the slab's mid-plane across an axis: x=MM, y=MM or z=MM")
+    slicing.add_argument("--normal", help="or the mid-plane's normal X,Y,Z (with --offset)")
+    slicing.add_argument("--offset", type=float, help="with --normal: the mid-plane's distance from the origin (mm)")
+    slicing.add_argument("--thickness", type=float, required=True, help="slab thickness (mm)")
+    slicing.add_argument("--region", help="keep only the part of the volume inside: " + REGION_HELP)
+    slicing.add_argument("-o", "--output", required=True, help="output EXR (every channel of a render, "
+                                                                  "isoclinic.angle, slab.mask)")
+    slicing.add_argument("--png", help="also write a PNG of the fringes")
+    slicing.add_argument("--maps", help="also write a PNG of the fringes, isochromatic order and isoclinic angle")
+    slicing.add_argument("--res", type=int, default=256, help="pixels along the part's longer side (default: 256)")
+    _add_polariscope_options(slicing)
+    slicing.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
+                         metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
+
     commands.add_parser("scenes", help="list the shipped scenes")
     return parser
+
+
+def _add_polariscope_options(parser):
+    parser.add_argument("--polariscope", choices=POLARISCOPE_KINDS, default="circular",
+                        help="circular (default) or linear (plane: shows isoclinics)")
+    parser.add_argument("--field", choices=POLARISCOPE_FIELDS, default="dark", help="dark (default) or light")
+    parser.add_argument("--angle", type=float, default=0.0,
+                        help="the polariscope turned by this many degrees: analyser at ANGLE in the dark field "
+                             "(default: 0)")
+    parser.add_argument("--load-scale", type=float, default=1.0, help="the stress times this (default: 1)")
+    parser.add_argument("--wavelength", type=float, help="nm (default: the material's)")
 
 
 def _render(args):
@@ -344,6 +377,21 @@ def _calibrate(args):
     print(f"wrote {Path(args.output).resolve()}")
 
 
+def _slice(args):
+    from .inside import Plane, Region, SliceSpec, open_source, slice_render
+    from .inside.plots import write_slice_maps
+    from .physics.polariscope import polariscope_setting
+    spec = SliceSpec(Plane.parse(args.plane, args.normal, args.offset), args.thickness,
+                     None if args.region is None else Region.parse(args.region), args.res,
+                     polariscope_setting(args.polariscope, args.field, args.angle), args.load_scale, args.wavelength)
+    source = open_source(args.source, dict(args.defines))
+    result = slice_render(source.scene, spec, source.field)
+    result.write(args.output, args.png)
+    if args.maps:
+        title = f"{Path(args.source).name}: {spec.describe()}, {args.field}-field {args.polariscope} polariscope"
+        print(f"wrote {write_slice_maps(args.maps, result, title).resolve()}")
+
+
 def _scenes(args):
     from . import scene_path
     for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
@@ -352,7 +400,7 @@ def _scenes(args):
 
 COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "bench": _bench,
             "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
-            "calibrate": _calibrate, "scenes": _scenes}
+            "calibrate": _calibrate, "scenes": _scenes, "slice": _slice}
 
 
 def _format_warning(message, category, filename, lineno, line=None):

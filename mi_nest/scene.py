@@ -71,7 +71,22 @@ def load_scene(path: str | Path, **defaults) -> mi.Scene:
         raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
     if not scene.id():
         scene.set_id(str(path))
+    # Scenes take no attributes and no weak references: keyed by identity, checked against the id on lookup.
+    _ORIGINS[id(scene)] = (scene.id(), path, {k: str(v) for k, v in defaults.items()})
     return scene
+
+
+# What load_scene loaded each scene from: id(scene) -> (its id, the file, the defines).
+_ORIGINS: dict[int, tuple[str, Path, dict]] = {}
+
+
+def scene_origin(scene: mi.Scene) -> tuple[Path, dict] | None:
+    """The file and the defines that :func:`load_scene` loaded ``scene`` from (None for a scene made otherwise):
+    what a result records so that its views can load the same scene again."""
+    origin = _ORIGINS.get(id(scene))
+    if origin is None or origin[0] != scene.id():
+        return None
+    return origin[1], dict(origin[2])
 
 
 def _load_robust(path, defaults):

@@ -14,7 +14,7 @@ from mi_nest.integration import film as films
 from mi_nest.integration import guards, methods, refraction
 from mi_nest.integration.film import CHANNELS, UNDIFFERENTIATED
 from mi_nest.integration.setup import SceneSetup
-from mi_nest.physics import MEASUREMENTS, jones, su2
+from mi_nest.physics import MEASUREMENTS, Polariscope, jones, su2
 from mi_nest.physics.aliasing import FringeAliasing
 
 # Queries again, each from a little further on, for a crossing that a ray inside a specimen did not find (walk).
@@ -336,6 +336,44 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             dr.make_opaque(state, state_grad)
             seeds = _ray_seeds(seed, dr.width(rays.o))
             self.replay(scene, rays, prepared, mi.Bool(True), seeds, state, state_grad)
+
+    def trace_chords(self, scene: mi.Scene, origins: mi.Point3f, d: mi.Vector3f, chords: list[tuple],
+                     right: mi.Vector3f, polariscope: Polariscope | None = None, step_size: float | None = None,
+                     seed: int = 0, field: StressField | None = None,
+                     phase_scale: float = 1.0) -> tuple[mi.Float, list[mi.Float], tuple]:
+        """Straight chords that the caller chose, marched as the walk marches its segments (for virtual slices).
+
+        Each of ``chords`` is ``(start, end, medium)`` per line ``origins + t d``:
+        distances along ``d`` (away from the camera, in that order) and the index
+        of the specimen medium there plus one (0: nothing). Returns a render's
+        main intensity (``polariscope``, by default the scene's), its AOV channels
+        and the summed fringe generator ``(b, c)``, with steps no longer than
+        ``step_size`` if given; ``phase_scale`` multiplies every phase (a load
+        scale, or a wavelength's ratio).
+        """
+        with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
+            setup = prepared.setup
+            if polariscope is not None:
+                setup.polariscope = polariscope
+            method = prepared.decision.method
+            step = prepared.decision.step_size if step_size is None else min(step_size, prepared.decision.step_size)
+            coefficients = tuple(tuple(phase_scale * x for x in row) for row in setup.projection_coefficients(d))
+            seeds = _ray_seeds(seed, dr.width(origins))
+            carry = method.trace_start()
+            length = mi.Float(0)
+            for index, (start, end, medium) in enumerate(chords):
+                chord = dr.maximum(end - start, 0.0)
+                marched = (medium != 0) & (chord > 0)
+                steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step), 1), 0))
+                h = chord / mi.Float(dr.maximum(steps, 1))
+                segment = RaySegment(steps, h, mi.UInt32(medium), dr.fma(d, start, origins), d, coefficients,
+                                     mi.sample_tea_32(seeds, mi.UInt32(index))[0])
+                carry = method.trace(carry, segment, setup)
+                length += dr.select(marched, chord, 0.0)
+            state, fringe = carry
+            main, aovs = self.outputs(state, fringe, mi.Bool(False), length)
+            dr.eval(main, aovs, fringe)
+            return main[0], aovs, fringe
 
     @staticmethod
     def _past_panel(setup: SceneSetup, ray: mi.Ray3f, blocked: mi.Bool) -> mi.Bool:

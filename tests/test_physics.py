@@ -186,3 +186,25 @@ def test_free_space_and_dark_field_closed_forms():
     q = su2.multiply(su2.rotator(rng.uniform(-1, 1, 100)), su2.retarder(delta, rng.uniform(0, 3, 100)))
     dark_field = Polariscope(90, 45, 135, 0)
     np.testing.assert_allclose(dark_field.intensity(q), np.sin(delta / 2) ** 2, atol=1e-12)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, -70.0])
+def test_the_textbook_polariscopes_give_their_closed_forms(angle):
+    from mi_nest.physics.polariscope import polariscope_setting
+    rng = np.random.default_rng(3)
+    delta, theta = rng.uniform(0, 2 * np.pi, 200), rng.uniform(0, np.pi, 200)
+    q = su2.retarder(delta, theta)
+    relative = theta - np.radians(angle)
+    circular_dark = np.sin(delta / 2) ** 2
+    linear_dark = np.sin(2 * relative) ** 2 * np.sin(delta / 2) ** 2
+    for kind, field, expected in (("circular", "dark", circular_dark), ("circular", "light", 1 - circular_dark),
+                                  ("linear", "dark", linear_dark), ("linear", "light", 1 - linear_dark)):
+        scope = polariscope_setting(kind, field, angle)
+        np.testing.assert_allclose(scope.intensity(q), expected, atol=1e-12)
+        # The same through the full Jones matrices (NumPy, element by element).
+        for i in range(3):
+            amplitude = scope.matrix(su2.to_matrix(tuple(x[i] for x in q)))
+            assert abs(np.sum(np.abs(amplitude) ** 2) - expected[i]) < 1e-12
+    assert polariscope_setting() == Polariscope(90.0, 45.0, 135.0, 0.0)    # the shipped scenes'
+    with pytest.raises(ValueError, match="choose one of circular, linear"):
+        polariscope_setting("elliptic")

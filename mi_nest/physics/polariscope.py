@@ -144,6 +144,33 @@ MEASUREMENTS = {
 }
 
 
+# The textbook polariscopes a view can choose (mi-nest slice, render, view).
+POLARISCOPE_KINDS = ("circular", "linear")
+POLARISCOPE_FIELDS = ("dark", "light")
+
+
+def polariscope_setting(kind: str = "circular", field: str = "dark", angle: float = 0.0) -> Polariscope:
+    """A plane (``linear``) or ``circular`` polariscope in a ``dark`` or ``light`` field, turned by ``angle``.
+
+    The polariser stands at ``angle + 90`` degrees, the analyser at ``angle``
+    (dark: crossed) or ``angle + 90`` (light: parallel); a circular one adds
+    QWP1 at ``angle + 45`` and QWP2 at ``angle + 135``. ``angle = 0`` in the
+    dark circular field is the shipped scenes' polariscope. Turning a plane
+    polariscope moves its isoclinics; a circular one shows none.
+    """
+    if kind not in POLARISCOPE_KINDS:
+        raise ValueError(f"unknown polariscope '{kind}'; choose one of {', '.join(POLARISCOPE_KINDS)}")
+    if field not in POLARISCOPE_FIELDS:
+        raise ValueError(f"unknown polariscope field '{field}'; choose one of {', '.join(POLARISCOPE_FIELDS)}")
+    angle = float(angle)
+    if not np.isfinite(angle):
+        raise ValueError(f"polariscope angle must be a finite number of degrees, got {angle}")
+    circular = kind == "circular"
+    return Polariscope(polarizer=angle + 90.0, input_qwp=angle + 45.0 if circular else None,
+                       output_qwp=angle + 135.0 if circular else None,
+                       analyzer=angle + (0.0 if field == "dark" else 90.0))
+
+
 def measurement_intensities(q: Sequence[Array]) -> dict[str, Array]:
     """The 16 intensities ``{"pol.<b1>.<b2>.<a2>": I}`` of docs/physics.md section 6."""
     return {name: scope.intensity(q) for name, scope in MEASUREMENTS.items()}

@@ -22,7 +22,7 @@ import numpy as np
 from .. import interrupts
 from ..dataset import Dataset
 from ..fields.base import sample
-from ..scene import specimen_shapes
+from ..scene import scene_origin, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import OptimizeConfig
@@ -360,9 +360,12 @@ class Run:
         if self.iterates_averaged:
             self.field.assign({name: total / self.iterates_averaged for name, total in self.iterate_sums.items()})
             self._require_sane_field()      # the last checkpoint checked the last iterate, not their mean
-        return Reconstruction(self.field, self.config, self.history, {}, self.seconds,
-                              {"dataset": str(self.dataset.directory.resolve()), "scene": self.scene.id(),
-                               "dataset_source": self.dataset.index.get("source", {})})
+        origin = scene_origin(self.scene)
+        source = {"dataset": str(self.dataset.directory.resolve()), "scene": self.scene.id(),
+                  "dataset_source": self.dataset.index.get("source", {})}
+        if origin is not None:
+            source.update(scene_file=str(origin[0]), defines=origin[1])
+        return Reconstruction(self.field, self.config, self.history, {}, self.seconds, source)
 
 
 def _flat(values):

@@ -1,0 +1,5 @@
+"""Looking inside a stress field, true or reconstructed: virtual slices, novel views, principal stresses."""
+from .slicing import Plane, Region, SliceError, SliceSpec, slice_render
+from .source import ViewSource, open_source
+
+__all__ = ["Plane", "Region", "SliceError", "SliceSpec", "slice_render", "ViewSource", "open_source"]

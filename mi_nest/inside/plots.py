@@ -1,0 +1,50 @@
+"""Figures of what lies inside: a slice's fringes with its isochromatic order and isoclinic angle maps."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..io.atomic import atomic_path
+from ..render import RenderResult
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def slice_extent(result: RenderResult) -> tuple[float, ...]:
+    """``(left, right, bottom, top)`` in mm of a slice (its EXR metadata)."""
+    return tuple(float(x) for x in result.metadata["mi_nest.extent_mm"].split(","))
+
+
+def write_slice_maps(path: str | Path, result: RenderResult, title: str) -> Path:
+    """One PNG: the fringes, the isochromatic order N (colour bar in fringes) and the isoclinic angle (degrees
+    from image right to sigma_1), on axes in mm; blank where the slab holds none of the part."""
+    plt = _pyplot()
+    outside = result.channels["slab.mask"] == 0
+    extent = slice_extent(result)
+    panels = (("fringes", result.channels["Y"], "gray", (0.0, 1.0), "intensity"),
+              ("isochromatic order", result.channels["fringe.order"], "viridis", (0.0, None), "fringe order N"),
+              ("isoclinic angle", result.channels["isoclinic.angle"], "twilight", (-90.0, 90.0),
+               "sigma_1 from image right (degrees)"))
+    figure, axes = plt.subplots(1, 3, figsize=(14, 4.6), constrained_layout=True)
+    for axis, (name, image, cmap, (low, high), label) in zip(axes, panels):
+        shown = np.ma.masked_where(outside, image)
+        if high is None:    # point loads are singular: the 99th percentile keeps the colours for the rest
+            high = max(float(np.percentile(shown.compressed(), 99)), 1e-6) if shown.count() else 1.0
+        drawn = axis.imshow(shown, cmap=cmap, vmin=low, vmax=high, extent=extent, interpolation="nearest")
+        axis.set_title(name)
+        axis.set_xlabel("image right (mm)")
+        axis.set_ylabel("image up (mm)")
+        figure.colorbar(drawn, ax=axis, shrink=0.85, label=label)
+    figure.suptitle(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".png") as tmp:
+        figure.savefig(tmp, format="png", dpi=100)
+    plt.close(figure)
+    return path

@@ -1,0 +1,59 @@
+"""What a view looks at: a scene's own (true) field, or a reconstruction's field in its scene's specimens."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mitsuba as mi
+
+from ..fields import StressField
+from ..reconstruct import Reconstruction
+from ..scene import load_scene
+
+RESULT_FILES = ("reconstruction.json", "field.npz")
+
+
+@dataclass
+class ViewSource:
+    """A scene and the field to show in its specimens: ``field`` None is the scene's own stress."""
+    scene: mi.Scene
+    field: StressField | None
+    name: str
+    reconstruction: Reconstruction | None = None
+
+    @property
+    def is_reconstruction(self) -> bool:
+        return self.reconstruction is not None
+
+    def truth(self) -> ViewSource | None:
+        """The same scene with its own stress, the truth a reconstruction of simulated data is compared with
+        (None for a scene itself, or for a reconstruction of captured data)."""
+        if self.reconstruction is None:
+            return None
+        kind = self.reconstruction.source.get("dataset_source", {}).get("kind")
+        return None if kind != "simulated" else ViewSource(self.scene, None, f"truth of {self.name}")
+
+
+def open_source(text: str | Path, defines: dict | None = None) -> ViewSource:
+    """A scene (XML file or shipped name, with ``defines``) or a result directory of ``mi-nest reconstruct``
+    (its field in the scene it was reconstructed with, ``defines`` added to that scene's)."""
+    path = Path(text)
+    if path.is_dir() and any((path / name).exists() for name in RESULT_FILES):
+        reconstruction = Reconstruction.load(path)
+        scene_file, scene_defines = _reconstruction_scene(path, reconstruction.source)
+        scene = load_scene(scene_file, **{**scene_defines, **dict(defines or {})})
+        return ViewSource(scene, reconstruction.field, str(path), reconstruction)
+    if path.is_dir():
+        raise ValueError(f"{path} is a directory but not a reconstruction (no {' or '.join(RESULT_FILES)}): "
+                         "give a scene or the output directory of mi-nest reconstruct")
+    return ViewSource(load_scene(path, **dict(defines or {})), None, str(path))
+
+
+def _reconstruction_scene(path: Path, source: dict) -> tuple[str, dict]:
+    if "scene_file" in source:
+        return source["scene_file"], source.get("defines", {})
+    dataset = source.get("dataset_source", {})
+    if "scene" not in dataset:
+        raise ValueError(f"{path}/reconstruction.json does not record its scene (made before mi_nest recorded "
+                         "it): reconstruct again, or view its field.npz through a scene of your own")
+    return dataset["scene"], dataset.get("defines", {})
