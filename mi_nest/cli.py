@@ -9,12 +9,14 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from . import interrupts
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
-from .reconstruct import DivergenceError
-from .rig.errors import RigError
 from .inside.slicing import REGION_HELP
 from .physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS
+from .reconstruct import DivergenceError
+from .rig.errors import RigError
 from .scene import parse_define
 
 
@@ -28,9 +30,16 @@ def _parser():
     parser = argparse.ArgumentParser(prog="mi-nest", description="Photoelastic stress tomography in Mitsuba 3.")
     commands = parser.add_subparsers(dest="command", required=True)
 
-    render = commands.add_parser("render", help="render a scene to a multichannel EXR")
-    render.add_argument("scene", help="scene XML file, or the name of a shipped scene")
+    render = commands.add_parser("render", help="render a scene, or a reconstruction from any view, to a "
+                                                 "multichannel EXR")
+    render.add_argument("scene", help="scene XML file, or the name of a shipped scene, or a reconstruction "
+                                      "directory (its field in the scene it was reconstructed with)")
     render.add_argument("-o", "--output", required=True, help="output EXR path")
+    render.add_argument("--azimuth", type=float, default=0.0,
+                        help="turn the specimen about the camera's up axis (degrees, as datasets do; default: 0)")
+    render.add_argument("--elevation", type=float, default=0.0,
+                        help="and about the camera's right axis (degrees; default: 0)")
+    _add_polariscope_options(render)
     render.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     render.add_argument("--png", help="also write a PNG preview of the main channel")
@@ -162,6 +171,38 @@ def _parser():
                            help="no specimen of known stress at hand: skip the handedness check; the calibration "
                                 "then records it as unverified and acquire needs --unverified-handedness")
 
+    turntable = commands.add_parser("turntable", help="a full turn of a scene or a reconstruction about the "
+                                                      "camera's up axis, as an animated GIF (or MP4)")
+    turntable.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
+    turntable.add_argument("-o", "--output", required=True, help="animation path: .gif, or .mp4 (video extra)")
+    turntable.add_argument("--frames", type=int, default=36, help="frames per turn (default: 36)")
+    turntable.add_argument("--elevation", type=float, default=0.0, help="degrees (default: 0)")
+    turntable.add_argument("--fps", type=float, default=12.0, help="frames per second (default: 12)")
+    turntable.add_argument("--channel", default="Y", help="channel shown (default: Y, the polariscope's image)")
+    turntable.add_argument("--spp", type=int, help="samples per pixel (overrides the scene)")
+    _add_polariscope_options(turntable)
+    turntable.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
+                           metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
+
+    compare = commands.add_parser("compare", help="a reconstruction's held-out views beside what its dataset "
+                                                  "captured there (PNG)")
+    compare.add_argument("result", help="reconstruction directory (output of mi-nest reconstruct)")
+    compare.add_argument("-o", "--output", required=True, help="PNG path")
+    compare.add_argument("--views", type=int, default=6, help="held-out rotations shown (default: 6)")
+    compare.add_argument("--channel", help="measurement shown (default: the dataset's first)")
+
+    principal = commands.add_parser(
+        "principal", help="principal stresses and von Mises on a plane, with direction glyphs (PNG); for a "
+                          "reconstruction of simulated data also the truth and the error")
+    principal.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
+    principal.add_argument("--plane", help="the plane across an axis: x=MM, y=MM or z=MM")
+    principal.add_argument("--normal", help="or the plane's normal X,Y,Z (with --offset)")
+    principal.add_argument("--offset", type=float, help="with --normal: the plane's distance from the origin (mm)")
+    principal.add_argument("-o", "--output", required=True, help="PNG path")
+    principal.add_argument("--res", type=int, default=128, help="pixels along the part's longer side (default: 128)")
+    principal.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
+                           metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
+
     slicing = commands.add_parser(
         "slice", help="the fringes of a virtual slice: a slab cut out of the part (stress frozen), seen at normal "
                       "incidence, with its isochromatic order and isoclinic angle maps",
@@ -187,20 +228,54 @@ def _parser():
 
 
 def _add_polariscope_options(parser):
-    parser.add_argument("--polariscope", choices=POLARISCOPE_KINDS, default="circular",
-                        help="circular (default) or linear (plane: shows isoclinics)")
-    parser.add_argument("--field", choices=POLARISCOPE_FIELDS, default="dark", help="dark (default) or light")
-    parser.add_argument("--angle", type=float, default=0.0,
-                        help="the polariscope turned by this many degrees: analyser at ANGLE in the dark field "
-                             "(default: 0)")
+    parser.add_argument("--polariscope", choices=POLARISCOPE_KINDS,
+                        help="circular or linear (plane: shows isoclinics); any of these three options replaces "
+                             "the scene's polariscope (default: circular, dark, 0)")
+    parser.add_argument("--field", choices=POLARISCOPE_FIELDS, help="dark or light")
+    parser.add_argument("--angle", type=float,
+                        help="the polariscope turned by this many degrees: analyser at ANGLE in the dark field")
     parser.add_argument("--load-scale", type=float, default=1.0, help="the stress times this (default: 1)")
     parser.add_argument("--wavelength", type=float, help="nm (default: the material's)")
 
 
 def _render(args):
-    from . import load_scene, render
-    scene = load_scene(args.scene, **dict(args.defines))
-    render(scene, spp=args.spp, seed=args.seed, progress=not args.quiet).write(args.output, args.png)
+    from .inside import open_source
+    from .inside.views import render_view
+    source = open_source(args.scene, dict(args.defines))
+    render_view(source, args.azimuth, args.elevation, _polariscope(args), args.load_scale, args.wavelength,
+                spp=args.spp, seed=args.seed, progress=not args.quiet).write(args.output, args.png)
+
+
+def _polariscope(args):
+    """The textbook polariscope the options name, or None (the scene's) when none is given."""
+    from .physics.polariscope import polariscope_setting
+    if args.polariscope is None and args.field is None and args.angle is None:
+        return None
+    return polariscope_setting(args.polariscope or "circular", args.field or "dark", args.angle or 0.0)
+
+
+def _turntable(args):
+    from .inside import open_source
+    from .inside.views import require_animation_path, turntable, write_animation
+    require_animation_path(args.output)     # before anything renders
+    source = open_source(args.source, dict(args.defines))
+    images = turntable(source, args.frames, args.elevation, args.channel, _polariscope(args), args.load_scale,
+                       args.wavelength, spp=args.spp, progress=True)
+    # Intensities go from 0 to 1; any other channel is shown up to its largest value.
+    high = 1.0 if args.channel == "Y" or args.channel.startswith("pol.") else max(float(np.max(images)), 1e-6)
+    print(f"wrote {write_animation(args.output, images, args.fps, high=high).resolve()} ({len(images)} frames)")
+
+
+def _compare(args):
+    from .inside import open_source
+    from .inside.views import held_out_views, write_held_out_sheet
+    source = open_source(args.result)
+    if args.views < 1:
+        raise ValueError(f"--views must be at least 1, got {args.views}")
+    views = held_out_views(source, args.views, args.channel)
+    path = write_held_out_sheet(args.output, views, f"{Path(args.result).name}: held-out rotations, "
+                                f"{args.channel or 'first channel'} (captured above, rendered below)")
+    print(f"wrote {path.resolve()} ({len(views)} held-out rotations)")
 
 
 def _demo(args):
@@ -383,13 +458,32 @@ def _slice(args):
     from .physics.polariscope import polariscope_setting
     spec = SliceSpec(Plane.parse(args.plane, args.normal, args.offset), args.thickness,
                      None if args.region is None else Region.parse(args.region), args.res,
-                     polariscope_setting(args.polariscope, args.field, args.angle), args.load_scale, args.wavelength)
+                     _polariscope(args) or polariscope_setting(), args.load_scale, args.wavelength)
     source = open_source(args.source, dict(args.defines))
     result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)
     if args.maps:
-        title = f"{Path(args.source).name}: {spec.describe()}, {args.field}-field {args.polariscope} polariscope"
+        title = f"{Path(args.source).name}: {spec.describe()}, {args.field or 'dark'}-field {args.polariscope or 'circular'} polariscope"
         print(f"wrote {write_slice_maps(args.maps, result, title).resolve()}")
+
+
+def _principal(args):
+    from .inside import Plane, open_source
+    from .inside.principal import source_slices, write_principal_figure
+    plane = Plane.parse(args.plane, args.normal, args.offset)
+    source = open_source(args.source, dict(args.defines))
+    shown, truth = source_slices(source, plane, args.res)
+    kind = "deviatoric principal stresses" if shown.deviatoric else "principal stresses"
+    path = write_principal_figure(args.output, shown, truth, f"{Path(args.source).name}: {kind} at "
+                                                             f"{plane.describe()}")
+    print(f"{Path(args.source).name} at {plane.describe()}: " + ", ".join(
+        f"{name} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
+        for name in ("sigma_1", "sigma_3", "von_mises")))
+    if truth is not None:
+        error = shown.minus(truth)["von_mises"]
+        print(f"von Mises against the truth: RMS error {np.sqrt(np.nanmean(error ** 2)):.3g} MPa "
+              f"(truth's RMS {np.sqrt(np.nanmean(truth.von_mises ** 2)):.3g} MPa)")
+    print(f"wrote {path.resolve()}")
 
 
 def _scenes(args):
@@ -400,7 +494,8 @@ def _scenes(args):
 
 COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "bench": _bench,
             "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
-            "calibrate": _calibrate, "scenes": _scenes, "slice": _slice}
+            "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
+            "turntable": _turntable, "compare": _compare, "principal": _principal}
 
 
 def _format_warning(message, category, filename, lineno, line=None):

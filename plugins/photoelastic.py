@@ -21,6 +21,14 @@ from mi_nest.physics.aliasing import FringeAliasing
 EXTRA_LOOKS = 2
 
 
+@dataclass(frozen=True)
+class View:
+    """What :meth:`PhotoelasticIntegrator.looking_through` sets: a polariscope instead of the scene's (None: the
+    scene's) and a factor on every phase."""
+    polariscope: Polariscope | None = None
+    phase_scale: float = 1.0
+
+
 @dataclass
 class Prepared:
     """What the calls inside one render or ray batch share: the scene set-up and the method decided for it."""
@@ -154,6 +162,20 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.decision = None        # the method and step of the last render or ray batch, and for 'auto' why
         self._decided = None        # the decision that deciding_once() keeps
         self._prepared_now = None   # what the render in progress shares with sample()
+        self._view = View()         # what looking_through() changes
+
+    @contextlib.contextmanager
+    def looking_through(self, polariscope: Polariscope | None = None, phase_scale: float = 1.0) -> Iterator[None]:
+        """Renders and ray batches inside the block show the specimens through ``polariscope`` instead of the
+        scene's, with every phase times ``phase_scale`` (a load scale, or a wavelength's ratio): what a view
+        changes without loading the scene again."""
+        if not (math.isfinite(phase_scale)):
+            raise ValueError(f"photoelastic: the phase scale must be a finite number, got {phase_scale}")
+        saved, self._view = self._view, View(polariscope, float(phase_scale))
+        try:
+            yield
+        finally:
+            self._view = saved
 
     def _method(self):
         """The method the properties name now (they may be changed between renders)."""
@@ -243,7 +265,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     @contextlib.contextmanager
     def _prepared(self, scene, sensor, right=None, field=None):
         """The scene set-up and the method for one render or ray batch (``auto`` decides here)."""
-        setup = SceneSetup(scene, sensor, right, field)
+        setup = SceneSetup(scene, sensor, right, field, self._view.phase_scale)
+        if self._view.polariscope is not None:
+            setup.polariscope = self._view.polariscope
         decision = self._decided or self._method().decide(setup, scene, sensor, self.step_size)
         guards.check_steps_per_ray(setup.specimen_diagonal, decision.step_size)
         self.decision = decision
@@ -338,26 +362,21 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             self.replay(scene, rays, prepared, mi.Bool(True), seeds, state, state_grad)
 
     def trace_chords(self, scene: mi.Scene, origins: mi.Point3f, d: mi.Vector3f, chords: list[tuple],
-                     right: mi.Vector3f, polariscope: Polariscope | None = None, step_size: float | None = None,
-                     seed: int = 0, field: StressField | None = None,
-                     phase_scale: float = 1.0) -> tuple[mi.Float, list[mi.Float], tuple]:
+                     right: mi.Vector3f, step_size: float | None = None, seed: int = 0,
+                     field: StressField | None = None) -> tuple[mi.Float, list[mi.Float], tuple]:
         """Straight chords that the caller chose, marched as the walk marches its segments (for virtual slices).
 
         Each of ``chords`` is ``(start, end, medium)`` per line ``origins + t d``:
         distances along ``d`` (away from the camera, in that order) and the index
         of the specimen medium there plus one (0: nothing). Returns a render's
-        main intensity (``polariscope``, by default the scene's), its AOV channels
-        and the summed fringe generator ``(b, c)``, with steps no longer than
-        ``step_size`` if given; ``phase_scale`` multiplies every phase (a load
-        scale, or a wavelength's ratio).
+        main intensity, its AOV channels and the summed fringe generator
+        ``(b, c)``, with steps no longer than ``step_size`` if given.
         """
         with dr.suspend_grad(), self._prepared(scene, None, right, field) as prepared:
             setup = prepared.setup
-            if polariscope is not None:
-                setup.polariscope = polariscope
             method = prepared.decision.method
             step = prepared.decision.step_size if step_size is None else min(step_size, prepared.decision.step_size)
-            coefficients = tuple(tuple(phase_scale * x for x in row) for row in setup.projection_coefficients(d))
+            coefficients = setup.projection_coefficients(d)
             seeds = _ray_seeds(seed, dr.width(origins))
             carry = method.trace_start()
             length = mi.Float(0)

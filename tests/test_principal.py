@@ -104,3 +104,50 @@ def test_an_export_to_an_unknown_format_is_refused_before_anything_is_loaded(tmp
     assert main(["export", "disk_compression", "-o", str(tmp_path / "field.csv")]) == 2
     err = capsys.readouterr().err
     assert "unknown export format '.csv'; give a name ending in .vtu" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_slice_plots_data_are_the_closed_forms():
+    from mi_nest.fields import UniformField
+    from mi_nest.inside import Plane
+    from mi_nest.inside.principal import principal_slice
+    # Lame's tube under internal pressure p, open ends: hoop, axial (zero) and radial stresses.
+    scene = mi_nest.load_scene("lame_cylinder", res=16)
+    data = principal_slice(scene, Plane.parse("z=1"), resolution=48)
+    image = data.image
+    points = image.centres().reshape(image.height, image.width, 3)
+    r = np.hypot(points[..., 0], points[..., 1])
+    a, b, p = 10.0, 20.0, 2.0
+    k = p * a * a / (b * b - a * a)
+    hoop, radial = k * (1 + b * b / r ** 2), k * (1 - b * b / r ** 2)
+    inside = data.inside
+    assert inside.sum() > 0.5 * np.pi * (b * b - a * a) / image.pixel ** 2
+    np.testing.assert_allclose(data.values[..., 0][inside], hoop[inside], rtol=1e-4)
+    np.testing.assert_allclose(data.values[..., 1][inside], 0.0, atol=1e-4)
+    np.testing.assert_allclose(data.values[..., 2][inside], radial[inside], rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(data.von_mises[inside], np.sqrt(hoop ** 2 - hoop * radial + radial ** 2)[inside],
+                               rtol=1e-4)
+    across, up = data.in_plane(0)       # the hoop direction is perpendicular to the radius
+    radius = np.stack([points[..., 0], points[..., 1]], axis=-1) / r[..., None]
+    np.testing.assert_allclose((across * radius[..., 0] + up * radius[..., 1])[inside], 0.0, atol=1e-4)
+    assert np.isnan(data.values[~inside]).all()
+    # Uniaxial stress, and hydrostatic pressure plus shear, as any field put in any part.
+    axis = np.array([math.cos(0.5), math.sin(0.5), 0.0])
+    uniaxial = _six(5.0 * np.outer(axis, axis))
+    data = principal_slice(scene, Plane.parse("z=1"), 24, UniformField(*uniaxial))
+    np.testing.assert_allclose(data.values[data.inside], [[5.0, 0.0, 0.0]] * int(data.inside.sum()), atol=1e-5)
+    across, up = data.in_plane(0)
+    np.testing.assert_allclose(np.abs(across * axis[0] + up * axis[1])[data.inside], 1.0, atol=1e-6)
+    data = principal_slice(scene, Plane.parse("z=1"), 24, UniformField(xx=2, yy=2, zz=2, xy=3))
+    np.testing.assert_allclose(data.values[data.inside], [[5.0, 2.0, -1.0]] * int(data.inside.sum()), atol=1e-5)
+    deviator = principal_slice(scene, Plane.parse("z=1"), 24, UniformField(xx=2, yy=2, zz=2, xy=3), deviatoric=True)
+    np.testing.assert_allclose(deviator.values[data.inside], [[3.0, 0.0, -3.0]] * int(data.inside.sum()), atol=1e-5)
+    np.testing.assert_allclose(deviator.von_mises[data.inside], data.von_mises[data.inside])
+
+
+def test_the_principal_command_plots_a_scene_and_refuses_a_plane_beside_it(tmp_path, capsys):
+    output = tmp_path / "principal.png"
+    assert main(["principal", "lame_cylinder", "--plane", "z=0", "--res", "32", "-o", str(output)]) == 0
+    assert output.stat().st_size > 0 and "sigma_1 1.3" in capsys.readouterr().out
+    assert main(["principal", "lame_cylinder", "--plane", "z=40", "-o", str(tmp_path / "x.png")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "misses the part" in error and not (tmp_path / "x.png").exists()

@@ -236,10 +236,12 @@ def slice_render(scene: mi.Scene, spec: SliceSpec, field: object | None = None) 
     chords = [(mi.Float(b.astype(np.float32)), mi.Float(e.astype(np.float32)), mi.UInt32(m.astype(np.uint32)))
               for b, e, m in zip(np.where(np.isfinite(begin), begin, 0.0), np.where(np.isfinite(end), end, 0.0),
                                  medium)]
-    main, aovs, fringe = integrator.trace_chords(
-        scene, mi.Point3f(*starts.T.astype(np.float32)), mi.Vector3f(*np.tile(d, (count, 1)).T.astype(np.float32)),
-        chords, mi.Vector3f(*np.tile(image.right, (count, 1)).T.astype(np.float32)), polariscope=spec.polariscope,
-        step_size=spec.thickness / STEPS_PER_THICKNESS, field=field, phase_scale=_phase_scale(scene, spec))
+    with integrator.looking_through(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength)):
+        main, aovs, fringe = integrator.trace_chords(
+            scene, mi.Point3f(*starts.T.astype(np.float32)),
+            mi.Vector3f(*np.tile(d, (count, 1)).T.astype(np.float32)), chords,
+            mi.Vector3f(*np.tile(image.right, (count, 1)).T.astype(np.float32)),
+            step_size=spec.thickness / STEPS_PER_THICKNESS, field=field)
     shape = (image.height, image.width)
     channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
     for name, value in zip(integrator.aov_names(), aovs):
@@ -297,15 +299,20 @@ def _intersect(a: tuple, b: tuple) -> tuple[np.ndarray, np.ndarray]:
     return begin[:kept], end[:kept]
 
 
-def _phase_scale(scene, spec):
-    """The load scale, and the wavelength's: C is the material's, so the phase goes as 1 / wavelength."""
-    if spec.wavelength is None:
-        return spec.load_scale
+def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | None = None) -> float:
+    """The factor on every phase of a view at ``load_scale`` times the load and at ``wavelength`` (nm; None:
+    the material's): the stress-optic coefficient C is the material's, so the phase goes as 1 / wavelength."""
+    if not math.isfinite(load_scale):
+        raise SliceError(f"the load scale must be a finite number, got {load_scale}")
+    if wavelength is None:
+        return float(load_scale)
+    if not (math.isfinite(wavelength) and wavelength > 0):
+        raise SliceError(f"the wavelength must be a positive number of nm, got {wavelength}")
     wavelengths = {medium.wavelength for medium in specimen_media(scene)}
     if len(wavelengths) > 1:
         raise SliceError(f"the specimens' media are given at different wavelengths ({sorted(wavelengths)} nm): "
                          "leave the wavelength at each medium's own")
-    return spec.load_scale * wavelengths.pop() / spec.wavelength
+    return float(load_scale) * wavelengths.pop() / wavelength
 
 
 def _empty_message(scene, spec):

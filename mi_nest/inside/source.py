@@ -1,25 +1,34 @@
 """What a view looks at: a scene's own (true) field, or a reconstruction's field in its scene's specimens."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
 import mitsuba as mi
+import numpy as np
 
 from ..fields import StressField
 from ..reconstruct import Reconstruction
-from ..scene import load_scene
+from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
 
 RESULT_FILES = ("reconstruction.json", "field.npz")
 
 
 @dataclass
 class ViewSource:
-    """A scene and the field to show in its specimens: ``field`` None is the scene's own stress."""
+    """A scene and the field to show in its specimens: ``field`` None is the scene's own stress. Views turn the
+    specimen about ``center`` from the camera's pose as loaded, ``reference``."""
     scene: mi.Scene
     field: StressField | None
     name: str
     reconstruction: Reconstruction | None = None
+    reference: np.ndarray = dataclass_field(init=False, repr=False)
+    center: np.ndarray = dataclass_field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.reference = reference_pose(self.scene)
+        low, high = specimen_bounds(specimen_shapes(self.scene))
+        self.center = 0.5 * (low + high)
 
     @property
     def is_reconstruction(self) -> bool:
@@ -31,7 +40,11 @@ class ViewSource:
         if self.reconstruction is None:
             return None
         kind = self.reconstruction.source.get("dataset_source", {}).get("kind")
-        return None if kind != "simulated" else ViewSource(self.scene, None, f"truth of {self.name}")
+        if kind != "simulated":
+            return None
+        truth = ViewSource(self.scene, None, f"truth of {self.name}")
+        truth.reference, truth.center = self.reference, self.center     # the scene's camera may have moved since
+        return truth
 
 
 def open_source(text: str | Path, defines: dict | None = None) -> ViewSource:
@@ -55,5 +68,5 @@ def _reconstruction_scene(path: Path, source: dict) -> tuple[str, dict]:
     dataset = source.get("dataset_source", {})
     if "scene" not in dataset:
         raise ValueError(f"{path}/reconstruction.json does not record its scene (made before mi_nest recorded "
-                         "it): reconstruct again, or view its field.npz through a scene of your own")
+                         "it): reconstruct again")
     return dataset["scene"], dataset.get("defines", {})

@@ -31,10 +31,12 @@ class SceneSetup:
     ``field``, if given, is sampled in every specimen instead of its medium's
     own (a reconstruction's trainable field); the media keep their material.
     ``right`` is each ray's image-right direction; by default the camera's.
+    ``phase_scale`` multiplies every phase (a view's load scale or wavelength).
     """
 
     def __init__(self, scene: mi.Scene, sensor: mi.Sensor | None, right: mi.Vector3f | None = None,
-                 field: StressField | None = None):
+                 field: StressField | None = None, phase_scale: float = 1.0):
+        self.phase_scale = phase_scale
         self.media = []
         self.specimens = []     # (shape, index of its medium), in scene order
         shape_media = {}
@@ -134,8 +136,8 @@ class SceneSetup:
         """:meth:`projection_coefficients` in a given transverse frame ``(u, v)``: a straight ray's, or one
         carried along a bent path (integration/refraction.py)."""
         alpha, beta = projection.projection_coefficients(u, v)
-        if len(self.media) == 1:
-            rate = self.media[0].phase_rate
+        rate = self.media[0].phase_rate * self.phase_scale if len(self.media) == 1 else self.phase_scale
+        if rate != 1.0:
             alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
         return alpha, beta
 
