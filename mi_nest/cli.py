@@ -203,6 +203,18 @@ def _parser():
     principal.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                            metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
 
+    view = commands.add_parser("view", help="an interactive viewer in the browser: drag to turn the part; the "
+                                            "slice, polariscope, load and wavelength on sliders (Ctrl-C stops it)")
+    view.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
+    view.add_argument("--host", default="127.0.0.1",
+                      help="address to serve on (default: 127.0.0.1, this machine only)")
+    view.add_argument("--port", type=int, default=8080, help="port (default: 8080, or the next free one)")
+    view.add_argument("--res", type=int, default=256, help="frame resolution at rest (default: 256)")
+    view.add_argument("--moving-res", type=int, default=128, help="while the view moves (default: 128)")
+    view.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    view.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
+                      metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
+
     slicing = commands.add_parser(
         "slice", help="the fringes of a virtual slice: a slab cut out of the part (stress frozen), seen at normal "
                       "incidence, with its isochromatic order and isoclinic angle maps",
@@ -486,6 +498,18 @@ def _principal(args):
     print(f"wrote {path.resolve()}")
 
 
+def _view(args):
+    from .arguments import whole_number
+    from .inside.viewer import run_viewer
+    for name in ("res", "moving_res"):
+        whole_number(f"--{name.replace('_', '-')}", getattr(args, name), minimum=8)
+    whole_number("--port", args.port, minimum=0)
+    if args.host not in ("127.0.0.1", "localhost", "::1"):
+        warnings.warn(f"serving on {args.host}: anyone who can reach this machine there can see the viewer")
+    run_viewer(args.source, dict(args.defines), args.host, args.port, args.res, args.moving_res,
+               open_browser=not args.no_browser)
+
+
 def _scenes(args):
     from . import scene_path
     for path in sorted(scene_path(DEFAULT_SCENE).parent.glob("*.xml")):
@@ -495,7 +519,8 @@ def _scenes(args):
 COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "bench": _bench,
             "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
             "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
-            "turntable": _turntable, "compare": _compare, "principal": _principal}
+            "turntable": _turntable, "compare": _compare, "principal": _principal,
+            "view": _view}
 
 
 def _format_warning(message, category, filename, lineno, line=None):

@@ -38,11 +38,13 @@ def crossings_along_lines(scene: mi.Scene, shape: mi.Shape, starts: np.ndarray, 
         active &= si.is_valid()
         on_shape = active & (dr.reinterpret_array(mi.UInt32, si.shape) == target)
         distance = dr.select(on_shape, dr.dot(si.p - origin, direction) - back, dr.inf)
-        dr.eval(distance, active)
+        # The next start too: left lazy, each query's kernel would trace every query before it again.
+        onward = past_surface(si, direction)
+        dr.eval(distance, active, onward)
         crossings.append(np.array(distance))
         if not np.array(active).any():
             break
-        ray = mi.Ray3f(past_surface(si, direction), direction)
+        ray = mi.Ray3f(onward, direction)
     return np.stack(crossings).astype(np.float64)
 
 

@@ -4,19 +4,35 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# Dr.Jit 1.5's LLVM backend needs LLVM 19 (15/16 crash it, 14 is refused).
-if ! ls /usr/lib/*-linux-gnu/libLLVM-19.so >/dev/null 2>&1; then
-    if command -v apt-get >/dev/null 2>&1; then
-        SUDO=""
-        if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-        echo "setup: installing libllvm19 (Dr.Jit's LLVM backend) with apt-get"
-        $SUDO apt-get update -qq
-        DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libllvm19 >/dev/null
-    else
-        echo "setup: LLVM 19 not found and no apt-get here: install libLLVM 19 and set" \
-             "DRJIT_LIBLLVM_PATH to it" >&2
+# Usage: setup.sh [--browser]; --browser also installs Debian's chromium, which the viewer's test drives.
+BROWSER=0
+for argument in "$@"; do
+    case "$argument" in
+        --browser) BROWSER=1 ;;
+        *) echo "setup: unknown option '$argument' (the only one is --browser)" >&2; exit 2 ;;
+    esac
+done
+
+apt_install() {     # apt_install WHY PACKAGE...
+    local why="$1"; shift
+    if ! command -v apt-get >/dev/null 2>&1; then
+        echo "setup: $why: no apt-get here; install $* yourself" >&2
         exit 1
     fi
+    local sudo=""
+    if [ "$(id -u)" -ne 0 ]; then sudo="sudo"; fi
+    echo "setup: installing $* ($why) with apt-get"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "$@" >/dev/null
+}
+
+# Dr.Jit 1.5's LLVM backend needs LLVM 19 (15/16 crash it, 14 is refused).
+if ! ls /usr/lib/*-linux-gnu/libLLVM-19.so >/dev/null 2>&1; then
+    apt_install "Dr.Jit's LLVM backend; or set DRJIT_LIBLLVM_PATH to a libLLVM 19" libllvm19
+fi
+# The viewer's test runs in a real browser from the system's packages (none is downloaded at run time).
+if [ "$BROWSER" = 1 ] && ! command -v chromium >/dev/null 2>&1; then
+    apt_install "the viewer's browser test" chromium
 fi
 
 PYTHON="${PYTHON:-python3}"

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import drjit as dr
@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import occupancy
 from ..arguments import whole_number
+from ..arrays import device_array
 from ..physics.polariscope import Polariscope, polariscope_setting
 from ..render import RenderResult
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
@@ -220,63 +221,100 @@ def slice_render(scene: mi.Scene, spec: SliceSpec, field: object | None = None) 
     """The slab's image: the named channels of a render (``Y`` through ``spec.polariscope``, the Jones product,
     ``fringe.order``: the isochromatic order, ...) plus ``isoclinic.angle`` (degrees from image right to
     sigma_1's direction in the image plane, in (-90, 90]) and ``slab.mask`` (1 where the slab holds part of a
-    specimen). ``field``, if given, is shown in every specimen instead of its own stress (a reconstruction's)."""
-    start = time.perf_counter()
-    image = slice_image(scene, spec)
-    n = np.asarray(spec.plane.normal)
-    d = -n
-    low, high = specimen_bounds(specimen_shapes(scene))
-    far = float(np.linalg.norm(high - low)) + abs(spec.plane.offset) + spec.thickness + 1.0
-    starts = image.centres() + far * n
-    begin, end, medium = _slab_chords(scene, spec, starts, d, far)
-    if not np.isfinite(begin).any():
-        raise SliceError(_empty_message(scene, spec))
-    integrator = photoelastic_integrator(scene)
-    count = len(starts)
-    chords = [(mi.Float(b.astype(np.float32)), mi.Float(e.astype(np.float32)), mi.UInt32(m.astype(np.uint32)))
-              for b, e, m in zip(np.where(np.isfinite(begin), begin, 0.0), np.where(np.isfinite(end), end, 0.0),
-                                 medium)]
-    with integrator.looking_through(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength)):
-        main, aovs, fringe = integrator.trace_chords(
-            scene, mi.Point3f(*starts.T.astype(np.float32)),
-            mi.Vector3f(*np.tile(d, (count, 1)).T.astype(np.float32)), chords,
-            mi.Vector3f(*np.tile(image.right, (count, 1)).T.astype(np.float32)),
-            step_size=spec.thickness / STEPS_PER_THICKNESS, field=field)
-    shape = (image.height, image.width)
-    channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
-    for name, value in zip(integrator.aov_names(), aovs):
-        channels[name] = np.array(value, dtype=np.float32).reshape(shape)
-    b, c = (np.array(x, dtype=np.float64) for x in fringe)
-    # The generator is -(phase) (sin 2 phi, cos 2 phi) in (b, c) for sigma_1 at phi from image right.
-    angle = 0.5 * np.degrees(np.arctan2(-b, -c))
-    channels["isoclinic.angle"] = np.where(angle <= -90.0, angle + 180.0, angle).astype(np.float32).reshape(shape)
-    channels["slab.mask"] = np.isfinite(begin).any(axis=0).astype(np.float32).reshape(shape)
-    metadata = {"mi_nest.version": __version__, "mi_nest.slice": spec.describe(),
-                "mi_nest.pixel_mm": f"{image.pixel:.9g}",
-                "mi_nest.extent_mm": ",".join(f"{x:.9g}" for x in image.extent())}
-    return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata)
+    specimen). ``field``, if given, is shown in every specimen instead of its own stress (a reconstruction's).
+    For many slices of one scene, keep a :class:`Slicer`."""
+    return Slicer(scene).render(spec, field)
 
 
-def _slab_chords(scene, spec, starts, d, far):
-    """``(begin, end, medium)`` (K, P): each line's chords inside the slab, a specimen and the region, in order
-    away from the camera; ``inf`` pads, ``medium`` is the specimen medium's index plus one."""
-    half = 0.5 * spec.thickness
-    slab = (np.full((1, len(starts)), far - half), np.full((1, len(starts)), far + half))
-    media = specimen_media(scene)
-    begins, ends, labels = [], [], []
-    for shape in specimen_shapes(scene):
-        begin, end = _intersect((_pairs(occupancy.crossings_along_lines(scene, shape, starts, d))), slab)
-        if spec.region is not None:
-            begin, end = _intersect((begin, end), spec.region.chords(starts, d))
-        begins.append(begin)
-        ends.append(end)
-        labels.append(np.full(begin.shape, media.index(shape.interior_medium()) + 1))
-    begin, end, medium = (np.concatenate(x) for x in (begins, ends, labels))
-    order = np.argsort(begin, axis=0, kind="stable")
-    begin, end, medium = (np.take_along_axis(x, order, axis=0) for x in (begin, end, medium))
-    kept = max(int(np.isfinite(begin).sum(axis=0).max()), 1)
-    medium = np.where(np.isfinite(begin), medium, 0)
-    return begin[:kept], end[:kept], medium[:kept]
+@dataclass(frozen=True)
+class SliceLines:
+    """The pixels' lines along a normal, from ``starts`` (``far`` beyond the plane through the origin) along
+    ``d``; each specimen's inside chords ``(begin, end)`` (K, P) as distances along them."""
+    starts: np.ndarray
+    d: np.ndarray
+    far: float
+    inside: tuple       # per specimen shape: (begin, end, medium index + 1)
+
+
+class Slicer:
+    """Slices of one scene. The lines' crossings with the specimens depend only on the normal and the
+    resolution, not on the offset, the thickness, the region or the polariscope: they are traced once for
+    each (what a viewer's sliders reuse)."""
+
+    def __init__(self, scene: mi.Scene):
+        self.scene = scene
+        self._lines = {}
+
+    def lines(self, spec: SliceSpec) -> SliceLines:
+        key = (spec.plane.normal, spec.resolution)
+        if key not in self._lines:
+            scene = self.scene
+            n = np.asarray(spec.plane.normal)
+            low, high = specimen_bounds(specimen_shapes(scene))
+            far = float(np.linalg.norm(high - low) + 2 * np.abs(np.concatenate([low, high])).max() + 1.0)
+            image = slice_image(scene, replace(spec, plane=Plane(spec.plane.normal, 0.0)))
+            starts = image.centres() + far * n
+            media = specimen_media(scene)
+            inside = tuple(_pairs(occupancy.crossings_along_lines(scene, shape, starts, -n))
+                           + (media.index(shape.interior_medium()) + 1,) for shape in specimen_shapes(scene))
+            self._lines[key] = SliceLines(starts, -n, far, inside)
+        return self._lines[key]
+
+    def render(self, spec: SliceSpec, field: object | None = None) -> RenderResult:
+        """:func:`slice_render` of this scene."""
+        start = time.perf_counter()
+        scene = self.scene
+        image = slice_image(scene, spec)
+        lines = self.lines(spec)
+        begin, end, medium = self._slab_chords(spec, lines)
+        if not np.isfinite(begin).any():
+            raise SliceError(_empty_message(scene, spec))
+        integrator = photoelastic_integrator(scene)
+        count = len(lines.starts)
+        chords = [(device_array(mi.Float, b), device_array(mi.Float, e), device_array(mi.UInt32, m, np.uint32))
+                  for b, e, m in zip(np.where(np.isfinite(begin), begin, 0.0), np.where(np.isfinite(end), end, 0.0),
+                                     medium)]
+        with integrator.looking_through(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength)):
+            main, aovs, fringe = integrator.trace_chords(
+                scene, device_array(mi.Point3f, lines.starts.T), device_array(mi.Vector3f, np.tile(lines.d, (count, 1)).T),
+                chords, device_array(mi.Vector3f, np.tile(image.right, (count, 1)).T),
+                step_size=spec.thickness / STEPS_PER_THICKNESS, field=field)
+        shape = (image.height, image.width)
+        channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
+        for name, value in zip(integrator.aov_names(), aovs):
+            channels[name] = np.array(value, dtype=np.float32).reshape(shape)
+        b, c = (np.array(x, dtype=np.float64) for x in fringe)
+        # The generator is -(phase) (sin 2 phi, cos 2 phi) in (b, c) for sigma_1 at phi from image right.
+        angle = 0.5 * np.degrees(np.arctan2(-b, -c))
+        channels["isoclinic.angle"] = np.where(angle <= -90.0, angle + 180.0, angle).astype(np.float32).reshape(shape)
+        channels["slab.mask"] = np.isfinite(begin).any(axis=0).astype(np.float32).reshape(shape)
+        metadata = {"mi_nest.version": __version__, "mi_nest.slice": spec.describe(),
+                    "mi_nest.pixel_mm": f"{image.pixel:.9g}",
+                    "mi_nest.extent_mm": ",".join(f"{x:.9g}" for x in image.extent())}
+        return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata)
+
+    @staticmethod
+    def _slab_chords(spec, lines):
+        """``(begin, end, medium)`` (K, P): each line's chords inside the slab, a specimen and the region, in
+        order away from the camera; ``inf`` pads, ``medium`` is the specimen medium's index plus one."""
+        middle = lines.far - spec.plane.offset      # where the lines cross the slab's mid-plane
+        count = len(lines.starts)
+        slab = (np.full((1, count), middle - 0.5 * spec.thickness), np.full((1, count), middle + 0.5 * spec.thickness))
+        region = None if spec.region is None else spec.region.chords(lines.starts, lines.d)
+        begins, ends, labels = [], [], []
+        for part_begin, part_end, label in lines.inside:
+            begin, end = _intersect((part_begin, part_end), slab)
+            if region is not None:
+                begin, end = _intersect((begin, end), region)
+            begins.append(begin)
+            ends.append(end)
+            labels.append(np.full(begin.shape, label))
+        begin, end, medium = (np.concatenate(x) for x in (begins, ends, labels))
+        order = np.argsort(begin, axis=0, kind="stable")
+        begin, end, medium = (np.take_along_axis(x, order, axis=0) for x in (begin, end, medium))
+        kept = max(int(np.isfinite(begin).sum(axis=0).max()), 1)
+        medium = np.where(np.isfinite(begin), medium, 0)
+        return begin[:kept], end[:kept], medium[:kept]
 
 
 def _pairs(crossings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -136,8 +136,11 @@ class SceneSetup:
         """:meth:`projection_coefficients` in a given transverse frame ``(u, v)``: a straight ray's, or one
         carried along a bent path (integration/refraction.py)."""
         alpha, beta = projection.projection_coefficients(u, v)
-        rate = self.media[0].phase_rate * self.phase_scale if len(self.media) == 1 else self.phase_scale
-        if rate != 1.0:
+        rate = self.media[0].phase_rate if len(self.media) == 1 else 1.0
+        if self.phase_scale != 1.0:
+            # Opaque: a view's load or wavelength slider launches the same kernel at every setting.
+            rate = rate * dr.opaque(mi.Float, self.phase_scale)
+        if not (isinstance(rate, float) and rate == 1.0):
             alpha, beta = tuple(rate * a for a in alpha), tuple(rate * b for b in beta)
         return alpha, beta
 

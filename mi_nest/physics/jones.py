@@ -92,7 +92,7 @@ def intensity(coefficients: Sequence[tuple[tuple[float, ...], tuple[float, ...]]
 
 
 def _dot(k, q):
-    terms = [c * x for c, x in zip(k, q) if c != 0.0]
+    terms = [c * x for c, x in zip(k, q) if not (isinstance(c, float) and c == 0.0)]
     return sum(terms) if terms else q[0] * 0.0
 
 

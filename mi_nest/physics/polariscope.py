@@ -102,8 +102,8 @@ class Polariscope:
             return jones.intensity(self.coefficients(), q)
         total = 0.0
         for re, im in self.coefficients():
-            amp_re = sum(k * x for k, x in zip(re, q) if k != 0.0)
-            amp_im = sum(k * x for k, x in zip(im, q) if k != 0.0)
+            amp_re = sum(k * x for k, x in zip(re, q) if not _zero(k))
+            amp_im = sum(k * x for k, x in zip(im, q) if not _zero(k))
             total = total + amp_re * amp_re + amp_im * amp_im
         return total
 
@@ -111,6 +111,11 @@ class Polariscope:
         """Full system matrix for a Jones matrix ``J`` (NumPy; used by tests and calibration)."""
         system = J @ (self.input_state()[:, None])
         return self.output_rows() @ system
+
+
+def _zero(k) -> bool:
+    """A form's coefficient known to be zero when the kernel is traced (opaque array coefficients never are)."""
+    return isinstance(k, float) and k == 0.0
 
 
 @lru_cache(maxsize=256)

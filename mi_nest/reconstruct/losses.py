@@ -10,7 +10,7 @@ import numpy as np
 from ..physics import MEASUREMENTS, Polariscope
 from ..physics.jones import Biquaternion
 from ..physics.su2 import Quaternion
-from .rays import device_array
+from ..arrays import device_array
 
 
 def intensities(q: Quaternion | Biquaternion,

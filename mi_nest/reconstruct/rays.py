@@ -1,37 +1,12 @@
 """Camera rays of dataset pixels: the scene's polariscope camera moved to each rotation's pose."""
 from __future__ import annotations
 
-from typing import TypeVar
-
 import mitsuba as mi
 import numpy as np
 
+from ..arrays import device_array
 from ..dataset import Dataset
 from ..scene import SceneError, polariscope_camera
-
-Array = TypeVar("Array")
-
-
-def device_array(kind: type[Array], values: np.ndarray) -> Array:
-    """A Dr.Jit array of NumPy ``values`` (one row per component) in 64-byte aligned memory.
-
-    Dr.Jit adopts a NumPy buffer as it is, and compiles the kernels that read it
-    for its alignment: arrays from ordinary NumPy memory, aligned differently
-    from call to call, would make a training loop rebuild its kernels.
-    """
-    values = np.asarray(values, dtype=np.float32)
-    if values.ndim == 1:
-        return kind(_aligned(values))
-    return kind(*(_aligned(row) for row in values))
-
-
-def _aligned(row):
-    storage = np.empty(row.size + 16, dtype=np.float32)
-    start = (-storage.ctypes.data % 64) // 4
-    aligned = storage[start:start + row.size]
-    aligned[:] = row
-    return aligned
-
 
 class ViewRays:
     """Rays through pixels of any rotation of ``dataset``, from the scene's camera model."""

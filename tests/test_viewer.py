@@ -1,0 +1,194 @@
+"""The viewer in a real browser: Debian's headless Chromium driven by Playwright loads the page, drags the view
+and moves a slider; the frame it shows changes and equals a direct render of the same pose within 8-bit rounding.
+"""
+import http.client
+import os
+import shutil
+import time
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.cli import main
+from mi_nest.inside.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
+from mi_nest.physics.polariscope import polariscope_setting
+from mi_nest.scene import photoelastic_integrator, pose
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+# What the machine's closed network needs (docs in the workplace's env notes): no background connections.
+CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+RESOLUTION, MOVING = 64, 32
+
+
+def _browser_or_skip():
+    playwright = pytest.importorskip("playwright.sync_api")
+    if not os.path.exists(CHROMIUM):
+        if os.environ.get("CI"):
+            pytest.fail("CI has no chromium: scripts/test.sh runs scripts/setup.sh --browser, which installs it")
+        pytest.skip("no chromium here (bash scripts/setup.sh --browser installs Debian's)")
+    return playwright
+
+
+@pytest.fixture(scope="module")
+def viewer():
+    frames = FrameRenderer("disk_compression", {"load": "400"}, RESOLUTION, MOVING)
+    served = Viewer(frames, port=0)
+    served.start()
+    yield served
+    served.stop()
+
+
+def _direct(frame):
+    """The frame's pose rendered straight through mi_nest.render, as 8-bit grey."""
+    scene = mi_nest.load_scene("disk_compression", load=400, res=frame.resolution)
+    pose(scene, frame.to_world)
+    state = frame.state
+    scale = state.load_scale * 532.0 / state.wavelength
+    with photoelastic_integrator(scene).looking_through(polariscope_setting(state.polariscope, state.field,
+                                                                            state.angle), scale):
+        image = mi_nest.render(scene, spp=1, seed=0).main
+    return to_rgb(image)[..., 0].astype(int)
+
+
+def _shown(page):
+    """The PNG that the page's frame image shows, decoded (grey levels)."""
+    source = page.locator("img[src^='blob:']").first.get_attribute("src")
+    data = page.evaluate("async (src) => Array.from(new Uint8Array(await (await fetch(src)).arrayBuffer()))",
+                         source)
+    return iio.imread(bytes(data), extension=".png")[..., 0].astype(int)
+
+
+def _wait_for(condition, seconds=60.0):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.05)
+    raise AssertionError("the viewer did not show the expected frame in time")
+
+
+def _wait_for_new_frame(page, previous, seconds=60.0):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        shown = _shown(page)
+        if shown.shape == (RESOLUTION, RESOLUTION) and (previous is None or np.any(shown != previous)):
+            return shown
+        time.sleep(0.1)
+    raise AssertionError("the page did not show a new frame in time")
+
+
+def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
+    sync_api = _browser_or_skip()
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 800})
+            page.goto(viewer.url)
+            first = _wait_for_new_frame(page, None)
+            _wait_for(lambda: viewer.last_frame is not None)
+            assert np.abs(first - _direct(viewer.last_frame)).max() <= 1
+            assert first.max() > 100      # fringes, not a blank frame
+
+            # Drag across the 3D view: the camera turns about the part.
+            canvas = page.locator("canvas").first.bounding_box()
+            x, y = canvas["x"] + 0.3 * canvas["width"], canvas["y"] + 0.5 * canvas["height"]
+            page.mouse.move(x, y)
+            page.mouse.down()
+            page.mouse.move(x + 120, y + 40, steps=12)
+            page.mouse.up()
+            dragged = _wait_for_new_frame(page, first)
+            _wait_for(lambda: not np.allclose(viewer.last_frame.to_world, viewer.frames.reference, atol=1e-6))
+            time.sleep(0.5)         # the last camera message of the drag, rendered at rest
+            dragged = _shown(page)
+            frame = viewer.last_frame
+            assert np.abs(dragged - _direct(frame)).max() <= 1
+            assert np.abs(dragged - first).mean() > 5
+
+            # A slider: the load scale, stepped with the keyboard.
+            slider = page.get_by_role("slider").nth(_slider_index(page, "load scale"))
+            slider.focus()
+            for _ in range(40):
+                page.keyboard.press("ArrowRight")
+            _wait_for(lambda: viewer.last_frame.state.load_scale > 1.2)
+            time.sleep(0.5)
+            loaded = _shown(page)
+            frame = viewer.last_frame
+            assert abs(frame.state.load_scale - 1.4) < 0.011
+            assert np.abs(loaded - _direct(frame)).max() <= 1
+            assert np.abs(loaded - dragged).mean() > 5
+        finally:
+            browser.close()
+
+
+def _slider_index(page, label):
+    """Which of the page's sliders is the one labelled ``label``."""
+    labels = page.evaluate("""() => Array.from(document.querySelectorAll("[role=slider]")).map(s => {
+        let node = s;
+        for (let i = 0; i < 8 && node; i++, node = node.parentElement) {
+            const text = node.innerText || "";
+            if (/[a-z]/i.test(text) && text.length < 80) return text;     // the row with the slider's label
+        }
+        return "";
+    })""")
+    matches = [i for i, text in enumerate(labels) if label in text]
+    assert matches, f"no slider labelled {label!r} among {labels}"
+    return matches[0]
+
+
+def test_the_viewer_serves_only_its_own_files_on_localhost(viewer):
+    assert viewer.url.startswith("http://127.0.0.1:")
+    host, port = viewer.url[len("http://"):].split(":")
+    for path in ("/../../../../etc/passwd", "/%2e%2e/%2e%2e/etc/passwd", "/pyproject.toml"):
+        connection = http.client.HTTPConnection(host, int(port), timeout=10)
+        connection.request("GET", path)
+        response = connection.getresponse()
+        body = response.read()
+        assert response.status == 404 and b"root:" not in body, path
+
+
+def test_a_frame_padded_to_the_views_aspect_keeps_its_pixels():
+    rgb = to_rgb(np.linspace(0, 1, 12).reshape(3, 4))
+    wide = padded_to_aspect(rgb, 2.0, 0)
+    assert wide.shape[:2] == (3, 6)
+    np.testing.assert_array_equal(wide[:, 1:5], rgb)
+    tall = padded_to_aspect(rgb, 0.5, 255)
+    assert tall.shape[:2] == (8, 4) and (tall[0] == 255).all()
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--res", "4"], "'--res' must be an integer >= 8"),
+    (["--port", "-1"], "'--port' must be an integer >= 0"),
+])
+def test_bad_viewer_options_get_one_line(arguments, message, capsys):
+    assert main(["view", "disk_compression", "--no-browser", *arguments]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error
+
+
+def test_mi_nest_view_serves_until_ctrl_c_and_then_stops_cleanly():
+    import re
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+    process = subprocess.Popen([sys.executable, "-m", "mi_nest.cli", "view", "disk_compression", "--no-browser",
+                                "--port", "0", "--res", "32", "--moving-res", "16"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        deadline = time.monotonic() + 120
+        while url is None and time.monotonic() < deadline:
+            line = process.stdout.readline()
+            found = re.search(r"mi-nest view: (http://127\.0\.0\.1:\d+)", line)
+            url = found.group(1) if found else None
+        assert url, "the viewer did not say where it serves"
+        assert urllib.request.urlopen(url, timeout=10).status == 200
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 0, err
+    assert "mi-nest view: stopped" in out and "Traceback" not in err
