@@ -56,7 +56,8 @@ def _parser():
     export = commands.add_parser("export", help="write a stress field as VTK (.vtu) for ParaView or as 3D-TSV "
                                                  "(.TSV) for its stress lines")
     export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti), "
-                                      "or a scene (XML file or shipped name) whose specimens are sampled on grids")
+                                      "or a scene (XML file or shipped name) or a reconstruction directory, whose "
+                                      "specimens are sampled on grids")
     export.add_argument("-o", "--output", required=True, help="output path: .vtu or .TSV")
     export.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
@@ -302,9 +303,13 @@ def _export(args):
         summary = export_file(stress_file(args.field), args.output, args.resolution)
         print(f"wrote {Path(args.output).resolve()} ({summary})")
         return
-    from . import load_scene
     from .export import export_scene
-    for path in export_scene(load_scene(args.field, **dict(args.defines)), args.output, args.resolution):
+    from .inside import open_source
+    source = open_source(args.field, dict(args.defines))
+    if source.is_reconstruction:
+        print(f"{args.field}: the reconstruction's deviatoric stress (photoelasticity does not see the mean "
+              "stress; the principal directions and von Mises are the full stress's)")
+    for path in export_scene(source.scene, args.output, args.resolution, source.field):
         print(f"wrote {path.resolve()}")
 
 

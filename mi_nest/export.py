@@ -8,6 +8,8 @@ import numpy as np
 
 from . import occupancy
 from .arguments import whole_number
+from .fields import StressField
+from .fields.base import sample
 from .io import export_format
 from .io.grid import StressGrid, grid_cells, grid_nodes
 from .io.tsv import write_stress_file
@@ -15,12 +17,13 @@ from .io.vtk import write_grid_vtu
 from .scene import specimen_shapes
 
 
-def specimen_grids(scene: mi.Scene, resolution: int = 64) -> list[StressGrid]:
+def specimen_grids(scene: mi.Scene, resolution: int = 64, field: StressField | None = None) -> list[StressGrid]:
     """One :class:`StressGrid` per specimen (a shape with a ``stress`` medium), over its bounding box.
 
-    Samples the medium's field at the grid nodes exactly as the renderer evaluates
-    it (analytic models included); nodes outside the shape carry the field's value
-    there, which the renderer never uses.
+    Samples the medium's field (or ``field``, a reconstruction's, in every
+    specimen) at the grid nodes exactly as the renderer evaluates it (analytic
+    models included); nodes outside the shape carry the field's value there,
+    which the renderer never uses.
     """
     # Two nodes per axis at least: one would be a grid of zero spacing, written as a single cell.
     resolution = whole_number("resolution", resolution, minimum=2)
@@ -31,18 +34,20 @@ def specimen_grids(scene: mi.Scene, resolution: int = 64) -> list[StressGrid]:
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
         spacing = (hi - lo).max() / (resolution - 1)
         counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
-        values = medium.sample(grid_nodes(lo, hi, counts))
+        nodes = grid_nodes(lo, hi, counts)
+        values = medium.sample(nodes) if field is None else sample(field, nodes)
         grids.append(StressGrid(values.reshape(counts[2], counts[1], counts[0], 6), lo, hi))
     return grids
 
 
-def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64) -> list[Path]:
-    """Write each specimen's field as ``output`` (``output-<i>.<suffix>`` when there are several): ``.vtu``
-    over its bounding box, ``.TSV`` as the hexahedra of that grid whose centres lie inside the specimen (what
-    3D-TSV traces stress lines through)."""
+def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64,
+                 field: StressField | None = None) -> list[Path]:
+    """Write each specimen's field (or ``field`` in each) as ``output`` (``output-<i>.<suffix>`` when there
+    are several): ``.vtu`` over its bounding box, ``.TSV`` as the hexahedra of that grid whose centres lie
+    inside the specimen (what 3D-TSV traces stress lines through)."""
     output = Path(output)
     kind = export_format(output)
-    grids = specimen_grids(scene, resolution)
+    grids = specimen_grids(scene, resolution, field)
     paths = [output] if len(grids) == 1 else [output.with_name(f"{output.stem}-{i}{output.suffix}")
                                               for i in range(len(grids))]
     for shape, grid, path in zip(specimen_shapes(scene), grids, paths):

@@ -133,3 +133,15 @@ def test_a_reconstructions_principal_stresses_are_deviatoric_beside_the_truths(r
     output = tmp_path / "principal.png"
     assert main(["principal", str(result / "result"), "--plane", "z=0", "--res", "24", "-o", str(output)]) == 0
     assert "von Mises against the truth: RMS error" in capsys.readouterr().out and output.stat().st_size > 0
+
+
+def test_a_reconstruction_exports_to_3d_tsv_and_reads_back_as_its_field(result, tmp_path, capsys):
+    from mi_nest.fields.base import sample
+    from mi_nest.io.tsv import read_stress_file
+    output = tmp_path / "disk.TSV"
+    assert main(["export", str(result / "result"), "-o", str(output), "--resolution", "12"]) == 0
+    assert "deviatoric" in capsys.readouterr().out
+    model = read_stress_file(output)
+    field = Reconstruction.load(result / "result").field
+    np.testing.assert_allclose(model.stress, sample(field, model.vertices), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(model.stress[:, :3].sum(axis=1), 0.0, atol=1e-5)     # trace-free

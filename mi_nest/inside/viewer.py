@@ -153,8 +153,8 @@ class Viewer:
         self.frames = frames
         self.host, self.port = host, port
         low, high = frames.bounds
-        self._state = ViewState(offset=float(0.5 * (low[2] + high[2])), thickness=float(max(high - low) / 20),
-                                wavelength=frames.wavelength)
+        self._state = ViewState(offset=round(float(0.5 * (low[2] + high[2])), 1),
+                                thickness=max(round(float(max(high - low) / 20), 1), 0.1), wavelength=frames.wavelength)
         self._to_world = frames.reference
         self._aspect = 1.0
         self._version = 0
@@ -194,6 +194,7 @@ class Viewer:
     def _controls(self, server) -> None:
         gui = server.gui
         low, high = self.frames.bounds
+        low, high = np.floor(10 * low) / 10, np.ceil(10 * high) / 10       # slider ends in tenths of a mm
         extent = float(max(high - low))
         state = self._state
         gui.add_markdown(f"**{self.frames.name}**: drag in the view to turn the part")
@@ -201,10 +202,10 @@ class Viewer:
         mode.on_update(lambda event: self._changed(mode=mode.value))
         with gui.add_folder("slice"):
             axis = gui.add_dropdown("normal", tuple(AXES), initial_value=state.axis)
-            offset = gui.add_slider("offset (mm)", min=float(low.min()), max=float(high.max()), step=extent / 200,
-                                    initial_value=state.offset)
-            thickness = gui.add_slider("thickness (mm)", min=extent / 200, max=extent, step=extent / 200,
-                                       initial_value=state.thickness)
+            offset = gui.add_slider("offset (mm)", min=float(low.min()), max=float(high.max()), step=0.1,
+                                    initial_value=round(state.offset, 1))
+            thickness = gui.add_slider("thickness (mm)", min=0.1, max=extent, step=0.1,
+                                       initial_value=max(round(state.thickness, 1), 0.1))
 
             def on_axis(event):
                 index = "xyz".index(axis.value)
