@@ -2,7 +2,6 @@
 each other and against the integrator's own walk, and the slices that cannot be made."""
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest

@@ -9,11 +9,23 @@ from ..io.atomic import atomic_path
 from ..render import RenderResult
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (no screen here, nor needed)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
+
+
+def save_figure(figure, path: str | Path, title: str, dpi: int = 100) -> Path:
+    """``figure`` titled, written atomically as a PNG at ``path`` and closed."""
+    figure.suptitle(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, ".png") as tmp:
+        figure.savefig(tmp, format="png", dpi=dpi)
+    pyplot().close(figure)
+    return path
 
 
 def slice_extent(result: RenderResult) -> tuple[float, ...]:
@@ -24,7 +36,7 @@ def slice_extent(result: RenderResult) -> tuple[float, ...]:
 def write_slice_maps(path: str | Path, result: RenderResult, title: str) -> Path:
     """One PNG: the fringes, the isochromatic order N (colour bar in fringes) and the isoclinic angle (degrees
     from image right to sigma_1), on axes in mm; blank where the slab holds none of the part."""
-    plt = _pyplot()
+    plt = pyplot()
     outside = result.channels["slab.mask"] == 0
     extent = slice_extent(result)
     panels = (("fringes", result.channels["Y"], "gray", (0.0, 1.0), "intensity"),
@@ -41,10 +53,4 @@ def write_slice_maps(path: str | Path, result: RenderResult, title: str) -> Path
         axis.set_xlabel("image right (mm)")
         axis.set_ylabel("image up (mm)")
         figure.colorbar(drawn, ax=axis, shrink=0.85, label=label)
-    figure.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path, ".png") as tmp:
-        figure.savefig(tmp, format="png", dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)

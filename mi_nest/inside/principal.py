@@ -15,9 +15,9 @@ import numpy as np
 
 from .. import occupancy
 from ..fields.base import sample
-from ..io.atomic import atomic_path
 from ..physics.tensors import principal_axes, von_mises
 from ..scene import specimen_shapes
+from .plots import pyplot, save_figure
 from .slicing import Plane, SliceError, SliceImage, SliceSpec, slice_image
 from .source import ViewSource
 
@@ -95,9 +95,7 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
     """sigma_1, sigma_2, sigma_3 and von Mises with colour bars in MPa, direction glyphs on the principal
     stresses (their in-plane part: a short glyph points out of the plane); with ``truth``, its row and the
     error row below."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     rows = [("reconstruction" if shown.deviatoric and truth is not None else "", shown)]
     if truth is not None:
         rows.append(("truth", truth))
@@ -136,13 +134,7 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
             axis.set_title(f"reconstruction - truth: {names[name]}")
             axis.set_xlabel("image right (mm)")
             axis.set_ylabel("image up (mm)")
-    figure.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path, ".png") as tmp:
-        figure.savefig(tmp, format="png", dpi=90)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title, dpi=90)
 
 
 def _limits(images, name):

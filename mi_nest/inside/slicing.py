@@ -19,7 +19,6 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 

@@ -20,6 +20,7 @@ from ..io.atomic import atomic_path
 from ..physics.polariscope import Polariscope
 from ..render import RenderResult, render
 from ..scene import photoelastic_integrator, pose
+from .plots import pyplot, save_figure
 from .slicing import phase_scale
 from .source import ViewSource
 
@@ -132,9 +133,7 @@ def held_out_views(source: ViewSource, count: int = 6, channel: str | None = Non
 
 def write_held_out_sheet(path: str | Path, views: list, title: str) -> Path:
     """Captured above rendered, one column per held-out rotation, with each pair's PSNR."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     figure, axes = plt.subplots(2, len(views), figsize=(2.6 * len(views), 5.8), squeeze=False,
                                 constrained_layout=True)
     for column, (rotation, captured, rendered) in enumerate(views):
@@ -149,10 +148,4 @@ def write_held_out_sheet(path: str | Path, views: list, title: str) -> Path:
                 axis.set_ylabel(label)
         axes[0, column].set_title(f"az {rotation['azimuth']:.1f}, el {rotation['elevation']:.1f}\n"
                                   f"PSNR {psnr:.1f} dB", fontsize=9)
-    figure.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path, ".png") as tmp:
-        figure.savefig(tmp, format="png", dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path, title)
