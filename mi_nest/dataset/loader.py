@@ -38,18 +38,15 @@ class _DecodedView:
         self.measured = np.stack([images[n] for n in channels], axis=-1)
         self.measured.flags.writeable = False   # shared by every caller
         self.mask_pixels = {}
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far."""
-        return (sum(a.nbytes for a in self.images.values()) + self.measured.nbytes
-                + sum(a.nbytes for a in self.mask_pixels.values()))
+        # Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far.
+        self.nbytes = sum(a.nbytes for a in images.values()) + self.measured.nbytes
 
     def pixels_inside(self, mask: str | None) -> np.ndarray:
         """Flat indices of the pixels where ``mask`` is set (None: all)."""
         if mask not in self.mask_pixels:
             self.mask_pixels[mask] = (np.arange(self.measured.shape[0] * self.measured.shape[1]) if mask is None
                                       else np.flatnonzero(self.images[mask] > 0.5))
+            self.nbytes += self.mask_pixels[mask].nbytes
         return self.mask_pixels[mask]
 
 
@@ -143,7 +140,8 @@ class Dataset:
         return view, pixels
 
     def _keep_within_budget(self):
-        # Recounted, not accumulated: a cached view grows when a mask's pixel indices are first asked for.
+        # Each view knows its own size (it grows when a mask's pixels are first asked for): summing a few
+        # integers per call, where summing every array of every view made reading a dataset quadratic in its views.
         cached_bytes = sum(v.nbytes for v in self._cache.values())
         while cached_bytes > self._cache_bytes and len(self._cache) > 1:
             cached_bytes -= self._cache.popitem(last=False)[1].nbytes
