@@ -1,44 +1,87 @@
-"""Dataset simulation cost (issue 5): the paper's 32 x 32 rotations at 256 x 256.
+"""Dataset simulation cost: the paper's 32 x 32 rotations at 256 x 256, this checkout against another.
 
-Times ``mi_nest.dataset.simulate`` on the disk and the kitten and prints, per
-rotation, the render time next to the time for noise, masks and writing the EXR,
-measured side by side in the same run. ``--rotations`` shrinks the grid for a
-quick estimate (the per-rotation costs do not depend on it).
+Times ``mi_nest.dataset.simulate`` on the disk and the kitten (read noise 0.01)
+and prints the wall time, the render time and the time for noise, masks and
+writing the EXR per rotation, and the peak resident memory of the run. Each
+version runs in its own process from a copy of its tree laid out as a wheel
+installs it; with ``--baseline`` the versions alternate, so a busy machine slows
+both alike, and the script prints their ratio. ``--rotations`` shrinks the grid
+for a quick estimate (the per-rotation costs do not depend on it).
 
-    python benchmarks/dataset.py                         # 32 x 32, both scenes
-    python benchmarks/dataset.py --rotations 8 --scenes disk
+    python benchmarks/dataset.py                         # 32 x 32, both scenes, this checkout
+    git worktree add /tmp/before HEAD~3 && python benchmarks/dataset.py --baseline /tmp/before
 """
 import argparse
+import json
+import os
+import subprocess
+import sys
 import tempfile
-import time
-import warnings
+from pathlib import Path
 
-from mi_nest.dataset import CameraModel, SimulationSettings, simulate
+from reconstruction import cpu_name, installed_layout
 
+HERE = Path(__file__).resolve().parents[1]
 SCENES = {"disk": "disk_compression", "kitten": "kitten"}
+
+WORKER = r"""
+import json, resource, sys, tempfile, time, warnings
+import mi_nest
+from mi_nest.dataset import CameraModel, SimulationSettings, simulate
+args = json.loads(sys.argv[1])
+settings = SimulationSettings(azimuths=args["rotations"], elevations=args["rotations"], res=args["res"],
+                              spp=args["spp"], camera=CameraModel(read_noise=0.01))
+with tempfile.TemporaryDirectory() as directory, warnings.catch_warnings():
+    warnings.simplefilter("ignore")       # oblique views of dense fields alias; not timed here
+    start = time.perf_counter()
+    report = simulate(args["scene"], directory, settings, progress=False)
+    total = time.perf_counter() - start
+print(json.dumps({"total": total, "render": report.render_seconds, "write": report.write_seconds,
+                  "count": report.rendered, "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "mi_nest": mi_nest.__file__}))
+"""
+
+
+def run(path_entry: Path, options: dict) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(path_entry)}
+    done = subprocess.run([sys.executable, "-c", WORKER, json.dumps(options)], env=env, capture_output=True,
+                          text=True, cwd=path_entry)
+    if done.returncode != 0:
+        raise SystemExit(f"the run from {path_entry} failed:\n{done.stderr[-3000:]}")
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    if not result["mi_nest"].startswith(str(path_entry)):
+        raise SystemExit(f"the run imported {result['mi_nest']}, not the copy in {path_entry}")
+    return result
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", type=Path, help="another mi_nest checkout to compare with (e.g. a git worktree)")
     parser.add_argument("--rotations", type=int, default=32, help="per axis (default: 32, the paper's)")
     parser.add_argument("--res", type=int, default=256)
     parser.add_argument("--spp", type=int, default=1)
     parser.add_argument("--scenes", default="disk,kitten")
     args = parser.parse_args()
-    settings = SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=args.res, spp=args.spp,
-                                  camera=CameraModel(read_noise=0.01))
-    print(f"{args.rotations} x {args.rotations} rotations over 180 x 180 deg, {args.res}x{args.res}, spp {args.spp}, "
-          "read noise 0.01")
-    print(f"{'scene':8s} {'total s':>8s} {'render ms':>10s} {'write ms':>9s} {'write/render':>13s}")
-    for name in args.scenes.split(","):
-        with tempfile.TemporaryDirectory() as directory, warnings.catch_warnings():
-            warnings.simplefilter("ignore")       # oblique views of dense fields alias; not timed here
-            start = time.perf_counter()
-            report = simulate(SCENES[name], directory, settings, progress=False)
-            total = time.perf_counter() - start
-        count = report.rendered
-        print(f"{name:8s} {total:8.1f} {report.render_seconds / count * 1e3:10.1f} "
-              f"{report.write_seconds / count * 1e3:9.1f} {report.write_seconds / report.render_seconds:12.1f}x")
+    print(f"{cpu_name()}; {args.rotations} x {args.rotations} rotations over 180 x 180 deg, {args.res}x{args.res}, "
+          f"spp {args.spp}, read noise 0.01")
+    print(f"{'scene':8s} {'version':14s} {'total s':>8s} {'render ms':>10s} {'write ms':>9s} {'peak MiB':>9s}")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        versions = {"this checkout": installed_layout(HERE, tmp / "current")}
+        if args.baseline:
+            versions["baseline"] = installed_layout(args.baseline.resolve(), tmp / "baseline")
+        for round_, name in enumerate(args.scenes.split(",")):
+            totals = {}
+            # The first of a pair may pay for kernels the second finds cached: alternate who goes first.
+            for version, path_entry in list(versions.items())[::1 if round_ % 2 == 0 else -1]:
+                result = run(path_entry, {"scene": SCENES[name], "rotations": args.rotations, "res": args.res,
+                                          "spp": args.spp})
+                count = result["count"]
+                totals[version] = result["total"]
+                print(f"{name:8s} {version:14s} {result['total']:8.1f} {result['render'] / count * 1e3:10.1f} "
+                      f"{result['write'] / count * 1e3:9.1f} {result['rss_mib']:9.0f}", flush=True)
+            if args.baseline:
+                print(f"{name:8s} wall time, baseline / this checkout: {totals['baseline'] / totals['this checkout']:.2f}x")
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from mi_nest.dataset.camera import MOSAIC, mosaic_mask
 from mi_nest.dataset.format import rotation_header
 from mi_nest.dataset.masks import agreement, linear_settings, min_dolp
 from mi_nest.dataset.schedule import Rotation, angles, camera_to_world, rotation_grid
+from mi_nest.dataset.simulate import WRITE_QUEUE
 from mi_nest.io.exr import write_channels
 from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.aliasing import ALIASED_FRACTION, NYQUIST
@@ -154,9 +155,12 @@ def test_an_interrupted_simulation_resumes_to_an_identical_dataset(tmp_path, dis
         simulate("disk_compression", resumed, settings, progress=False, on_rotation=kill_after_five)
     with pytest.raises(DatasetError, match="incomplete"):
         Dataset(resumed)
-    assert len(Dataset(resumed, allow_incomplete=True)) == 6
+    # Rotations 0 to 5 are on disk, and the ones rendered while the writer wrote them are written too (up to the
+    # writer's queue and the one rendering): an interrupted run keeps all it rendered.
+    on_disk = len(Dataset(resumed, allow_incomplete=True))
+    assert 6 <= on_disk <= 6 + WRITE_QUEUE + 1
     report = simulate("disk_compression", resumed, settings, progress=False)
-    assert (report.rendered, report.kept) == (10, 6)
+    assert (report.rendered, report.kept) == (16 - on_disk, on_disk)
     a, b = Dataset(whole), Dataset(resumed)
     for position in range(16):
         assert all(np.array_equal(a.view(position)[n], b.view(position)[n]) for n in MEASUREMENTS)
@@ -239,3 +243,26 @@ def test_cli_simulates_and_shows_a_contact_sheet(tmp_path, capsys):
     assert (out / "contact_sheet.png").stat().st_size > 1000
     assert main(["show", str(out), "-c", "nope"]) == 2
     assert "unknown channel" in capsys.readouterr().err
+
+
+def test_a_writer_error_stops_the_simulation_with_that_error(tmp_path, monkeypatch):
+    import importlib
+    simulation = importlib.import_module("mi_nest.dataset.simulate")
+    calls = []
+
+    def failing(path, *args, **kwargs):
+        calls.append(path)
+        if len(calls) == 3:
+            raise OSError(f"{path}: No space left on device")
+        return original(path, *args, **kwargs)
+    original = simulation._write_rotation
+    monkeypatch.setattr(simulation, "_write_rotation", failing)
+    settings = SimulationSettings(azimuths=4, elevations=4, res=16, spp=1)
+    with pytest.raises(OSError, match="No space left on device"):
+        simulate("disk_compression", tmp_path / "data", settings, progress=False)
+    # The run stopped at the failure: only what the writers had in hand beside it was written.
+    written = len(Dataset(tmp_path / "data", allow_incomplete=True))
+    assert 2 <= written <= 2 + WRITE_QUEUE + 1
+    monkeypatch.setattr(simulation, "_write_rotation", original)
+    report = simulate("disk_compression", tmp_path / "data", settings, progress=False)
+    assert (report.kept, report.rendered) == (written, 16 - written)

@@ -1,12 +1,16 @@
 """Render a multi-axis polariscope dataset of a scene: every specimen rotation, all 16 channels.
 
 One Jones pass per ray gives all 16 measurements of a rotation (the integrator
-writes them as channels). Every file is written atomically, and a rerun with
-the same settings resumes: finished rotations are kept, not redone.
+writes them as channels). The camera model, the masks and the EXR of each
+rotation are made on a writer thread while the next rotation renders, through a
+bounded queue. Every file is written atomically, and a rerun with the same
+settings resumes: finished rotations are kept, not redone.
 """
 from __future__ import annotations
 
 import json
+import queue
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
@@ -54,16 +58,89 @@ class SimulationReport:
     rendered: int
     kept: int
     render_seconds: float
-    write_seconds: float
+    write_seconds: float             # on the writer thread, beside the renders
     mask_iou: float                  # mean over rotations, DoLP mask against the exact occupancy
     warnings: list = field(default_factory=list)
+    wall_seconds: float = 0.0        # the rotations' loop, renders and writing overlapped
 
     def describe(self) -> str:
         per = self.rendered or 1
-        return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run; render "
-                f"{self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks and "
-                f"writing {self.write_seconds:.2f} s ({self.write_seconds / per * 1e3:.1f} ms each); DoLP mask "
-                f"against the exact occupancy: mean IoU {self.mask_iou:.3f}")
+        return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run in {self.wall_seconds:.2f} s; "
+                f"render {self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
+                f"and writing {self.write_seconds:.2f} s ({self.write_seconds / per * 1e3:.1f} ms each) beside "
+                f"them; DoLP mask against the exact occupancy: mean IoU {self.mask_iou:.3f}")
+
+
+# Rendered rotations that may wait for the writers: each holds a render's channels (about 7 MB at 256 x 256).
+WRITE_QUEUE = 4
+# Writer threads: NumPy's noise and OpenEXR's compression run beside the renders and beside each other.
+WRITERS = 2
+
+
+class _RotationWriter:
+    """The camera model, the masks and the EXR of each rendered rotation, on threads of their own.
+
+    :meth:`put` waits while :data:`WRITE_QUEUE` rotations are queued (memory stays
+    bounded) and raises a writer's error, if one had one; :meth:`written` says
+    which rotations are on disk since it was last asked; :meth:`finish` writes
+    what is queued (an interrupted run keeps every rotation it rendered).
+    """
+
+    def __init__(self, settings, index, threads: int = WRITERS):
+        self.settings, self.index = settings, index
+        self._queue = queue.Queue(maxsize=WRITE_QUEUE)
+        self._done = queue.Queue()
+        self._error = None
+        self._threads = [threading.Thread(target=self._run, name=f"mi_nest-simulate-writer-{i}", daemon=True)
+                         for i in range(threads)]
+        for thread in self._threads:
+            thread.start()
+
+    def put(self, path, channels, entry, aliasing) -> None:
+        while True:
+            self._raise_error()
+            try:
+                self._queue.put((path, channels, entry, aliasing), timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def written(self) -> list[tuple[dict, float]]:
+        done = []
+        while True:
+            try:
+                done.append(self._done.get_nowait())
+            except queue.Empty:
+                return done
+
+    def finish(self, raise_error: bool = True) -> None:
+        for thread in self._threads:
+            if thread.is_alive():
+                self._queue.put(None)
+        for thread in self._threads:
+            thread.join()
+        if raise_error:
+            self._raise_error()
+
+    def _run(self):
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is not None:
+                continue        # drain: the run is ending with the error
+            path, channels, entry, aliasing = item
+            start = time.perf_counter()
+            try:
+                _write_rotation(path, channels, entry, self.index, self.settings, aliasing)
+            except BaseException as error:      # raised in the main thread, at its next put or at finish
+                self._error = error
+                continue
+            self._done.put((entry, time.perf_counter() - start))
+
+    def _raise_error(self):
+        if self._error is not None:
+            raise self._error
 
 
 def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: SimulationSettings) -> dict:
@@ -137,18 +214,38 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     bar = tqdm(total=len(index["rotations"]), desc="simulate", unit="rotation", disable=not progress)
     rendered = kept = 0
     render_seconds = write_seconds = 0.0
-    with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends
-        warnings.simplefilter("always")
-        for entry in index["rotations"]:
-            rendered_now = _rotation(scene, output, entry, index, settings)
-            rendered += rendered_now is not None
-            kept += rendered_now is None
-            if rendered_now is not None:
-                render_seconds += rendered_now[0]
-                write_seconds += rendered_now[1]
+    start = time.perf_counter()
+
+    def on_disk(entries):
+        nonlocal write_seconds
+        for entry, seconds in entries:
+            write_seconds += seconds
             bar.update()
             if on_rotation is not None:
                 on_rotation(entry)
+
+    with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends
+        warnings.simplefilter("always")
+        writer = _RotationWriter(settings, index)
+        try:
+            for entry in index["rotations"]:
+                if fmt.rotation_is_whole(output, entry, index):
+                    kept += 1
+                    on_disk([(entry, 0.0)])
+                    continue
+                rendering = time.perf_counter()
+                pose(scene, entry["to_world"])
+                result = render(scene, spp=settings.spp)
+                render_seconds += time.perf_counter() - rendering
+                writer.put(output / entry["file"], result.channels, entry, result.aliasing)
+                rendered += 1
+                on_disk(writer.written())
+        except BaseException:
+            writer.finish(raise_error=False)    # what was rendered is written; the first error goes on
+            raise
+        writer.finish()
+        on_disk(writer.written())
+    wall_seconds = time.perf_counter() - start
     if caught:
         # One summary, not one warning per rotation.
         warnings.warn(f"{len(caught)} warning(s) over {rendered} rendered rotations; the last: {caught[-1].message}",
@@ -160,20 +257,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     index["fringe_aliasing"] = _aliasing_summary(output, index["rotations"])
     fmt.write_index(output, index)
     return SimulationReport(output, rendered, kept, render_seconds, write_seconds, float(np.mean(ious)),
-                            [str(w.message) for w in caught])
-
-
-def _rotation(scene, output, entry, index, settings):
-    """Render and write one rotation unless it is on disk: ``(render s, write s)`` or None if kept."""
-    path = output / entry["file"]
-    if fmt.rotation_is_whole(output, entry, index):
-        return None
-    start = time.perf_counter()
-    pose(scene, entry["to_world"])
-    result = render(scene, spp=settings.spp)
-    middle = time.perf_counter()
-    _write_rotation(path, result.channels, entry, index, settings, result.aliasing)
-    return middle - start, time.perf_counter() - middle
+                            [str(w.message) for w in caught], wall_seconds)
 
 
 # Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
