@@ -81,7 +81,8 @@ def main():
                 print(f"{name:8s} {version:14s} {result['total']:8.1f} {result['render'] / count * 1e3:10.1f} "
                       f"{result['write'] / count * 1e3:9.1f} {result['rss_mib']:9.0f}", flush=True)
             if args.baseline:
-                print(f"{name:8s} wall time, baseline / this checkout: {totals['baseline'] / totals['this checkout']:.2f}x")
+                ratio = totals["baseline"] / totals["this checkout"]
+                print(f"{name:8s} wall time, baseline / this checkout: {ratio:.2f}x")
 
 
 if __name__ == "__main__":

@@ -480,7 +480,8 @@ def _slice(args):
     result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)
     if args.maps:
-        title = f"{Path(args.source).name}: {spec.describe()}, {args.field or 'dark'}-field {args.polariscope or 'circular'} polariscope"
+        scope = f"{args.field or 'dark'}-field {args.polariscope or 'circular'} polariscope"
+        title = f"{Path(args.source).name}: {spec.describe()}, {scope}"
         print(f"wrote {write_slice_maps(args.maps, result, title).resolve()}")
 
 

@@ -34,7 +34,6 @@ class OpaquePolariscope:
     viewer's slider) launches the same kernel, where literal forms compiled one kernel per setting (0.4 s)."""
 
     def __init__(self, scope: Polariscope):
-        self.scope = scope
         self._forms = tuple(tuple(tuple(dr.opaque(mi.Float, k) for k in part) for part in row)
                             for row in scope.coefficients())
 
@@ -185,7 +184,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         """Renders and ray batches inside the block show the specimens through ``polariscope`` instead of the
         scene's, with every phase times ``phase_scale`` (a load scale, or a wavelength's ratio): what a view
         changes without loading the scene again."""
-        if not (math.isfinite(phase_scale)):
+        if not math.isfinite(phase_scale):
             raise ValueError(f"photoelastic: the phase scale must be a finite number, got {phase_scale}")
         saved, self._view = self._view, View(polariscope, float(phase_scale))
         try:

@@ -65,8 +65,8 @@ class SimulationReport:
 
     def describe(self) -> str:
         per = self.rendered or 1
-        return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run in {self.wall_seconds:.2f} s; "
-                f"render {self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
+        return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run in "
+                f"{self.wall_seconds:.2f} s; render {self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
                 f"and writing {self.write_seconds:.2f} s ({self.write_seconds / per * 1e3:.1f} ms each) beside "
                 f"them; DoLP mask against the exact occupancy: mean IoU {self.mask_iou:.3f}")
 

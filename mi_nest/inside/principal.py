@@ -99,8 +99,8 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
     rows = [("reconstruction" if shown.deviatoric and truth is not None else "", shown)]
     if truth is not None:
         rows.append(("truth", truth))
-    figure, axes = plt.subplots(len(rows) + (truth is not None), 4, figsize=(17, 4.2 * (len(rows) + (truth is not None))),
-                                squeeze=False, constrained_layout=True)
+    row_count = len(rows) + (truth is not None)        # with a truth, its row and the error row
+    figure, axes = plt.subplots(row_count, 4, figsize=(17, 4.2 * row_count), squeeze=False, constrained_layout=True)
     prefix = "s" if shown.deviatoric else "sigma"
     names = {"sigma_1": f"{prefix}_1", "sigma_2": f"{prefix}_2", "sigma_3": f"{prefix}_3", "von_mises": "von Mises"}
     # One colour scale per quantity across the rows, so that truth and reconstruction compare by eye.

@@ -275,8 +275,9 @@ class Slicer:
                                      medium)]
         with integrator.looking_through(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength)):
             main, aovs, fringe = integrator.trace_chords(
-                scene, device_array(mi.Point3f, lines.starts.T), device_array(mi.Vector3f, np.tile(lines.d, (count, 1)).T),
-                chords, device_array(mi.Vector3f, np.tile(image.right, (count, 1)).T),
+                scene, device_array(mi.Point3f, lines.starts.T),
+                device_array(mi.Vector3f, np.tile(lines.d, (count, 1)).T), chords,
+                device_array(mi.Vector3f, np.tile(image.right, (count, 1)).T),
                 step_size=spec.thickness / STEPS_PER_THICKNESS, field=field)
         shape = (image.height, image.width)
         channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
