@@ -119,8 +119,9 @@ def main():
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp) / "data"
-        simulate(args.scene, data, SimulationSettings(azimuths=32, elevations=32, res=64), defines=defines,
-                 progress=False)
+        if not (data / "dataset.json").is_file():      # a given dataset is used as it is (another version's too)
+            simulate(args.scene, data, SimulationSettings(azimuths=32, elevations=32, res=64), defines=defines,
+                     progress=False)
         scene = mi_nest.load_scene(args.scene, res=64, **defines)
         print(f"{cpu_name()}; {args.scene} {defines}, 32 x 32 rotations at 64 x 64, optimize's defaults, "
               f"iterations {first} to {args.iterations}")

@@ -534,3 +534,25 @@ def test_a_relative_reference_without_a_grid_smoothness_reads_no_scale(tiny_data
     result = optimize(_scene(), tiny_dataset, iterations=2, kind="mlp", relative_to=1.0, batch_size=64,
                       progress=False)
     assert len(result.history) == 2 and result.config.regulariser.relative_to == 1.0
+
+
+@pytest.mark.parametrize("edge", [None, 0.7])
+def test_the_smoothness_gradient_gathered_per_node_is_the_automatic_one(edge):
+    from mi_nest.reconstruct.fields import _neighbour_pairs, _Smoothness
+    shape, per_length, weight = (7, 5, 4), 8.0, 0.3
+    values = np.random.default_rng(1).normal(size=int(np.prod(shape)) * 5).astype(np.float32)
+    custom, automatic = mi.Float(values), mi.Float(values)
+    dr.enable_grad(custom, automatic)
+    first, second = _neighbour_pairs(shape)
+    with dr.resume_grad():
+        penalty = dr.custom(_Smoothness, custom, (first, second), shape, per_length, dr.opaque(mi.Float, weight),
+                            None if edge is None else dr.opaque(mi.Float, edge ** 2))
+        dr.backward(penalty)
+        squared = dr.square((dr.gather(mi.Float, automatic, first) - dr.gather(mi.Float, automatic, second))
+                            * per_length)
+        plain = squared if edge is None else 2 * edge ** 2 * (dr.sqrt(1 + squared / edge ** 2) - 1)
+        reference = weight * dr.mean(plain)
+        dr.backward(reference)
+    assert float(penalty[0]) == pytest.approx(float(reference[0]), rel=1e-5)
+    np.testing.assert_allclose(np.array(dr.grad(custom)), np.array(dr.grad(automatic)), rtol=1e-4, atol=1e-7)
+    assert np.abs(np.array(dr.grad(custom))).max() > 1e-3

@@ -172,28 +172,20 @@ class DeviatoricGrid(TrainableField):
         return float(dr.sqrt(dr.mean(dr.square(self.texture.tensor().array)))[0])
 
     def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
+        """``weight`` times the mean over neighbouring nodes of the squared difference per node spacing (lengths
+        in units of the box's longest side: the mean squared gradient, the same for one field at every
+        resolution, so coarse-to-fine stages are not smoothed harder than the final grid); with ``edge``, the
+        Charbonnier penalty ``2 edge^2 (sqrt(1 + (d / edge)^2) - 1)``: the squared gradient below the edge,
+        growing only linearly above it, so stress concentrations keep their flanks while gentle ripples (poorly
+        observed directions) are smoothed."""
         if weight == 0:
             return None
         if self._pairs is None:
             self._pairs = _neighbour_pairs(self.shape)
-        values = self.texture.tensor().array
-        first, second = self._pairs
-        # Differences per node spacing, lengths in units of the box's longest side: the mean squared
-        # gradient, the same for one field at every resolution, so coarse-to-fine stages are not
-        # smoothed harder than the final grid (squared differences grow with the spacing squared).
-        per_length = self.config.resolution - 1
-        difference = (dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)) * per_length
-        if edge is None:
-            penalty = dr.square(difference)
-        else:
-            # Charbonnier: the squared gradient below the edge, growing only linearly above it, so stress
-            # concentrations keep their flanks while gentle ripples (poorly observed directions) are smoothed.
-            # 2 edge^2 (sqrt(1 + (d / edge)^2) - 1), written without the cancellation of small gradients.
-            squared = dr.square(difference)
-            # Opaque, like the weight: an edge that follows the field's scale would rebuild the kernel.
-            penalty = 2.0 * squared / (dr.sqrt(1.0 + squared / dr.opaque(mi.Float, edge ** 2)) + 1.0)
-        # Opaque: a literal weight that decays would rebuild the gradient kernel every iteration.
-        return dr.opaque(mi.Float, weight) * dr.mean(penalty)
+        # Opaque, the weight and the edge: ones that decay or follow the field's scale would rebuild the kernels.
+        edge_squared = None if edge is None else dr.opaque(mi.Float, edge ** 2)
+        return dr.custom(_Smoothness, self.texture.tensor().array, self._pairs, self.shape,
+                         float(self.config.resolution - 1), dr.opaque(mi.Float, weight), edge_squared)
 
     def describe(self) -> str:
         return f"grid {'x'.join(map(str, self.shape))}"
@@ -209,6 +201,51 @@ def _neighbour_pairs(shape):
         first.append(np.take(index, range(count - 1), axis=axis).ravel())
         second.append(np.take(index, range(1, count), axis=axis).ravel())
     return mi.UInt32(np.concatenate(first)), mi.UInt32(np.concatenate(second))
+
+
+def _charbonnier(squared, edge_squared):
+    """``2 e^2 (sqrt(1 + d^2 / e^2) - 1)`` of ``squared = d^2``, written without the cancellation of small ``d``."""
+    return 2.0 * squared / (dr.sqrt(1.0 + squared / edge_squared) + 1.0)
+
+
+class _Smoothness(dr.CustomOp):
+    """A grid's smoothness penalty (:meth:`DeviatoricGrid.smoothness_penalty`) with its gradient gathered per
+    node from its up to six neighbours, in one kernel: differentiated automatically, every pair scattered its
+    derivative to its two nodes by atomic adds (4.6 ms of a 50 ms iteration on the disk's 64-node grid)."""
+
+    def eval(self, values, pairs, shape, per_length, weight, edge_squared):
+        self.values, self.shape, self.per_length = values, shape, per_length
+        self.weight, self.edge_squared, self.count = weight, edge_squared, dr.width(pairs[0])
+        first, second = pairs
+        difference = (dr.gather(mi.Float, values, first) - dr.gather(mi.Float, values, second)) * per_length
+        squared = dr.square(difference)
+        penalty = squared if edge_squared is None else _charbonnier(squared, edge_squared)
+        return weight * dr.mean(penalty)
+
+    def slope(self, difference):
+        """The penalty's derivative in a pair's difference per spacing."""
+        if self.edge_squared is None:
+            return 2.0 * difference
+        return 2.0 * difference / dr.sqrt(1.0 + dr.square(difference) / self.edge_squared)
+
+    def backward(self):
+        values = self.values
+        nx, ny, nz = self.shape
+        index = dr.arange(mi.UInt32, dr.width(values))
+        node = index // 5
+        coordinates = (node % nx, (node // nx) % ny, node // (nx * ny))
+        gradient = dr.zeros(mi.Float, dr.width(values))
+        # A node is the first of the pair with its next neighbour and the second of the pair with its previous.
+        for coordinate, count, stride in zip(coordinates, (nx, ny, nz), (5, 5 * nx, 5 * nx * ny)):
+            has_next, has_previous = coordinate + 1 < count, coordinate > 0
+            following = dr.gather(mi.Float, values, index + stride, has_next)
+            preceding = dr.gather(mi.Float, values, index - stride, has_previous)
+            gradient += dr.select(has_next, self.slope((values - following) * self.per_length), 0.0)
+            gradient -= dr.select(has_previous, self.slope((preceding - values) * self.per_length), 0.0)
+        self.set_grad_in("values", self.grad_out() * self.weight * self.per_length / self.count * gradient)
+
+    def name(self):
+        return "Smoothness"
 
 
 class SiLU(nn.Module):
