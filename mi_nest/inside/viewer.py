@@ -165,6 +165,7 @@ class Viewer:
         self.server = None
         self.last_frame: Frame | None = None        # the last full-resolution frame shown
         self.frames_drawn = 0
+        self._shown_version = -1                    # the version of the last full-resolution frame shown
 
     @property
     def url(self) -> str:
@@ -184,6 +185,12 @@ class Viewer:
             self._thread.join(timeout=30)
         if self.server is not None:
             self.server.stop()
+
+    @property
+    def settled(self) -> bool:
+        """Whether the frame shown at full resolution is of the view as it stands (nothing left to render)."""
+        with self._lock:
+            return self._shown_version == self._version
 
     def _changed(self, **changes) -> None:
         with self._lock:
@@ -278,6 +285,7 @@ class Viewer:
             except (SliceError, ValueError) as error:
                 self._status.content = f"**cannot show this:** {error}"
                 drawn_version, drawn_full = version, True
+                self._shown_version = version
                 continue
             rgb = to_rgb(frame.image)
             background = 255 if state.field == "light" else 0
@@ -286,6 +294,7 @@ class Viewer:
             if not moving:
                 self._image.image = rgb
                 self.last_frame = frame
+                self._shown_version = version
                 self._status.content = (f"{frame.image.shape[1]}x{frame.image.shape[0]} in "
                                         f"{1000 * frame.seconds:.0f} ms")
             drawn_version, drawn_full = version, not moving
