@@ -12,14 +12,10 @@ for a quick estimate (the per-rotation costs do not depend on it).
     git worktree add /tmp/before HEAD~3 && python benchmarks/dataset.py --baseline /tmp/before
 """
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
-from reconstruction import cpu_name, installed_layout
+from reconstruction import cpu_name, installed_layout, run
 
 HERE = Path(__file__).resolve().parents[1]
 SCENES = {"disk": "disk_compression", "kitten": "kitten"}
@@ -40,18 +36,6 @@ print(json.dumps({"total": total, "render": report.render_seconds, "write": repo
                   "count": report.rendered, "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "mi_nest": mi_nest.__file__}))
 """
-
-
-def run(path_entry: Path, options: dict) -> dict:
-    env = {**os.environ, "PYTHONPATH": str(path_entry)}
-    done = subprocess.run([sys.executable, "-c", WORKER, json.dumps(options)], env=env, capture_output=True,
-                          text=True, cwd=path_entry)
-    if done.returncode != 0:
-        raise SystemExit(f"the run from {path_entry} failed:\n{done.stderr[-3000:]}")
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    if not result["mi_nest"].startswith(str(path_entry)):
-        raise SystemExit(f"the run imported {result['mi_nest']}, not the copy in {path_entry}")
-    return result
 
 
 def main():
@@ -75,7 +59,7 @@ def main():
             # The first of a pair may pay for kernels the second finds cached: alternate who goes first.
             for version, path_entry in list(versions.items())[::1 if round_ % 2 == 0 else -1]:
                 result = run(path_entry, {"scene": SCENES[name], "rotations": args.rotations, "res": args.res,
-                                          "spp": args.spp})
+                                          "spp": args.spp}, WORKER)
                 count = result["count"]
                 totals[version] = result["total"]
                 print(f"{name:8s} {version:14s} {result['total']:8.1f} {result['render'] / count * 1e3:10.1f} "

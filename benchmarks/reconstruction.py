@@ -72,9 +72,10 @@ def installed_layout(tree: Path, into: Path) -> Path:
     return into
 
 
-def run(path_entry: Path, options: dict) -> dict:
+def run(path_entry: Path, options: dict, worker: str = WORKER) -> dict:
+    """``worker`` run on the copy of one version at ``path_entry`` with ``options``: the JSON it prints last."""
     env = {**os.environ, "PYTHONPATH": str(path_entry)}
-    done = subprocess.run([sys.executable, "-c", WORKER, json.dumps(options)], env=env, capture_output=True,
+    done = subprocess.run([sys.executable, "-c", worker, json.dumps(options)], env=env, capture_output=True,
                           text=True, cwd=path_entry)
     if done.returncode != 0:
         raise SystemExit(f"the run from {path_entry} failed:\n{done.stderr[-3000:]}")
