@@ -29,12 +29,16 @@ def l1_loss(q: Quaternion, targets: np.ndarray, pixel_samples: int = 1, weights:
     ``weights`` (N, 0 or 1) selects the pixels that count.
     """
     targets = np.asarray(targets, dtype=np.float32)
-    total = 0.0
+    # One upload of every channel, read per channel on the device: 16 uploads were 16 host calls an iteration.
+    flat = device_array(mi.Float, targets.ravel())
+    pixel = dr.arange(mi.UInt32, len(targets)) * targets.shape[1]
+    error = 0.0
     for channel, predicted in enumerate(intensities(q, polariscopes)):
         if pixel_samples > 1:
             predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
-        error = dr.abs(predicted - device_array(mi.Float, targets[:, channel]))
-        total = total + dr.sum(error if weights is None else error * weights)
+        error = error + dr.abs(predicted - dr.gather(mi.Float, flat, pixel + channel))
+    # One reduction of the summed channels, not one per channel.
+    total = dr.sum(error if weights is None else error * weights)
     count = len(targets) if weights is None else dr.maximum(dr.sum(weights), 1.0)
     return total / (count * targets.shape[1])
 
