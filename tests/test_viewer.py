@@ -174,13 +174,15 @@ def test_bad_viewer_options_get_one_line(arguments, message, capsys):
 
 
 def test_mi_nest_view_serves_until_ctrl_c_and_then_stops_cleanly():
+    """Ctrl-C while the first frame (the kitten at 1024 x 1024) renders: the render only notes it, between passes,
+    and the command must still end (it slept on forever, once in CI)."""
     import re
     import signal
     import subprocess
     import sys
     import urllib.request
-    process = subprocess.Popen([sys.executable, "-m", "mi_nest.cli", "view", "disk_compression", "--no-browser",
-                                "--port", "0", "--res", "32", "--moving-res", "16"],
+    process = subprocess.Popen([sys.executable, "-m", "mi_nest.cli", "view", "kitten", "--no-browser",
+                                "--port", "0", "--res", "1024", "--moving-res", "512"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         url = None
@@ -191,6 +193,7 @@ def test_mi_nest_view_serves_until_ctrl_c_and_then_stops_cleanly():
             url = found.group(1) if found else None
         assert url, "the viewer did not say where it serves"
         assert urllib.request.urlopen(url, timeout=10).status == 200
+        time.sleep(0.2)         # inside the first frame's render
         process.send_signal(signal.SIGINT)
         out, err = process.communicate(timeout=60)
     finally:
