@@ -51,8 +51,15 @@ def handling() -> Iterator[None]:
 
 @contextmanager
 def deferred() -> Iterator[None]:
-    """Inside the block the first Ctrl-C waits for the next :func:`check` (or the end of the block)."""
+    """Inside the block the first Ctrl-C waits for the next :func:`check` (or the end of the block).
+
+    Only on the main thread, where Python runs signal handlers: a block on another thread (the viewer's
+    renders) defers nothing, and must not make the main thread's Ctrl-C wait for a check it never makes.
+    """
     global _deferring
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     with handling():
         _deferring += 1
         try:

@@ -174,8 +174,8 @@ def test_bad_viewer_options_get_one_line(arguments, message, capsys):
 
 
 def test_mi_nest_view_serves_until_ctrl_c_and_then_stops_cleanly():
-    """Ctrl-C while the first frame (the kitten at 1024 x 1024) renders: the render only notes it, between passes,
-    and the command must still end (it slept on forever, once in CI)."""
+    """Ctrl-C while the first frame (the kitten at 1024 x 1024) renders on the viewer's thread: the render's
+    deferral of Ctrl-C must not hold back the main thread's (it slept on forever, once in CI)."""
     import re
     import signal
     import subprocess

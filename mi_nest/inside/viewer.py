@@ -18,7 +18,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .. import interrupts
 from ..physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS, polariscope_setting
 from ..render import render
 from ..scene import SceneError, photoelastic_integrator, pose, specimen_bounds, specimen_media, specimen_shapes
@@ -311,9 +310,7 @@ def run_viewer(source: str, defines: dict | None = None, host: str = DEFAULT_HOS
         import webbrowser
         webbrowser.open(viewer.url)
     try:
-        # A Ctrl-C while the render thread is inside a render is only noted (renders take it between passes):
-        # look for it here too, or the main thread would sleep on after the render thread has ended.
-        while not interrupts.received():
+        while True:
             time.sleep(0.2)
     except KeyboardInterrupt:
         pass
