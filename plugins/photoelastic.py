@@ -398,8 +398,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             for index, (start, end, medium) in enumerate(chords):
                 chord = dr.maximum(end - start, 0.0)
                 marched = (medium != 0) & (chord > 0)
-                steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step), 1), 0))
-                h = chord / mi.Float(dr.maximum(steps, 1))
+                steps, h = methods.equal_steps(chord, marched, step)
                 segment = RaySegment(steps, h, mi.UInt32(medium), dr.fma(d, start, origins), d, coefficients,
                                      mi.sample_tea_32(seeds, mi.UInt32(index))[0])
                 carry = method.trace(carry, segment, setup)
@@ -547,8 +546,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
             # The chord between hit points, not the spawned ray's t (its origin is offset).
             chord = dr.norm(si.p - origin)
             marched = active & hit & (inside != 0) & ~unexpected
-            steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
-            h = chord / mi.Float(dr.maximum(steps, 1))
+            steps, h = methods.equal_steps(chord, marched, step_size)
             segment_seed = mi.sample_tea_32(seeds, crossings)[0]
             carry = segment(carry, RaySegment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
             length += dr.select(marched, chord, 0.0)

@@ -61,6 +61,13 @@ class StepSample(Protocol):
         """A uniformly random fraction of the step, the same in every pass over it (Dr.Jit only)."""
 
 
+def equal_steps(chord: mi.Float, marched: mi.Bool, step_size: float) -> tuple[mi.UInt32, mi.Float]:
+    """``(steps, h)``: a marched chord split into ``ceil(chord / step_size)`` equal steps (at least one) of
+    length ``h``; none where it is not marched."""
+    steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
+    return steps, chord / mi.Float(dr.maximum(steps, 1))
+
+
 class Decision(NamedTuple):
     """The method and step size a render marches with, and for ``auto`` why."""
     method: Method

@@ -37,6 +37,7 @@ from mi_nest import occupancy
 from mi_nest.physics import interface, jones, projection, su2
 
 from .guards import SceneSetupError
+from .methods import equal_steps
 
 if TYPE_CHECKING:
     from .setup import SceneSetup
@@ -165,7 +166,7 @@ def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u
     entering = dr.dot(si.n, d) < 0
     chord = dr.norm(si.p - origin)
     marched = hit & (medium != 0)
-    steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
+    steps, h = equal_steps(chord, marched, step_size)
     # The traced ray goes from index n to n * step; the light the other way.
     step = dr.select(entering, ratio, dr.rcp(dr.maximum(ratio, 1e-30)))
     turned, cos_traced, total = interface.refract(d, si.n, mi.Float(1.0), step)
@@ -191,7 +192,7 @@ def _crossing(si: mi.SurfaceInteraction3f, origin: mi.Point3f, d: mi.Vector3f, u
     new_d = dr.select(bend, turned, d)
     # Reflected (totally or partly), the ray stays on its side of the surface.
     stays = bend & (total | partial)
-    return Hit(marched, steps, chord / mi.Float(dr.maximum(steps, 1)), chord, hit & (hit_medium == 0) & ~bend, bend,
+    return Hit(marched, steps, h, chord, hit & (hit_medium == 0) & ~bend, bend,
                partial, matrix, new_d,
                dr.select(bend, mi.Vector3f(interface.transported(u, d, turned, s_axis)), u),
                dr.select(bend, mi.Vector3f(interface.transported(v, d, turned, s_axis)), v),
