@@ -19,10 +19,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS, polariscope_setting
-from ..render import render
-from ..scene import SceneError, photoelastic_integrator, pose, specimen_bounds, specimen_media, specimen_shapes
-from .slicing import AXES, Plane, SliceError, Slicer, SliceSpec, phase_scale
-from .source import ViewSource, open_source
+from ..scene import SceneError, specimen_bounds, specimen_media, specimen_shapes
+from .slicing import AXES, Plane, SliceError, Slicer, SliceSpec
+from .source import open_source
+from .views import render_pose
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -116,15 +116,9 @@ class FrameRenderer:
                                  polariscope=state.scope(), load_scale=state.load_scale, wavelength=state.wavelength)
                 image = self.slicers[resolution].render(spec, source.field).main
             else:
-                image = self.render_part(source, state, to_world)
+                image = render_pose(source, to_world, state.scope(), state.load_scale, state.wavelength, spp=1).main
         return Frame(np.asarray(image, dtype=np.float32), state, to_world, resolution, time.perf_counter() - start)
 
-    @staticmethod
-    def render_part(source: ViewSource, state: ViewState, to_world: np.ndarray) -> np.ndarray:
-        pose(source.scene, to_world)
-        scale = phase_scale(source.scene, state.load_scale, state.wavelength)
-        with photoelastic_integrator(source.scene).looking_through(state.scope(), scale):
-            return render(source.scene, spp=1, seed=0, field=source.field).main
 
 
 def to_rgb(image: np.ndarray) -> np.ndarray:

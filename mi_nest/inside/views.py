@@ -18,6 +18,7 @@ from ..dataset import Dataset
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
 from ..physics.polariscope import Polariscope
+from ..reconstruct.metrics import psnr
 from ..render import RenderResult, render
 from ..scene import photoelastic_integrator, pose
 from .plots import pyplot, save_figure
@@ -40,12 +41,22 @@ def render_view(source: ViewSource, azimuth: float = 0.0, elevation: float = 0.0
                 spp: int | None = None, seed: int = 0, progress: bool = False) -> RenderResult:
     """Render ``source`` (its true or reconstructed field) with the specimen turned to ``azimuth``/``elevation``,
     through ``polariscope`` (None: the scene's) at ``load_scale`` times the load and ``wavelength`` (nm)."""
-    pose(source.scene, view_pose(source, azimuth, elevation))
+    result = render_pose(source, view_pose(source, azimuth, elevation), polariscope, load_scale, wavelength, spp,
+                         seed, progress)
+    result.metadata.update({"mi_nest.azimuth": f"{azimuth:g}", "mi_nest.elevation": f"{elevation:g}"})
+    return result
+
+
+def render_pose(source: ViewSource, to_world: np.ndarray, polariscope: Polariscope | None = None,
+                load_scale: float = 1.0, wavelength: float | None = None, spp: int | None = None, seed: int = 0,
+                progress: bool = False) -> RenderResult:
+    """Render ``source`` with its camera at ``to_world`` (4x4), as :func:`render_view` does at its angles: what
+    the viewer renders where a drag left the camera."""
+    pose(source.scene, to_world)
     scale = phase_scale(source.scene, load_scale, wavelength)
     with photoelastic_integrator(source.scene).looking_through(polariscope, scale):
         result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field)
-    result.metadata.update({"mi_nest.source": source.name, "mi_nest.azimuth": f"{azimuth:g}",
-                            "mi_nest.elevation": f"{elevation:g}"})
+    result.metadata["mi_nest.source"] = source.name
     return result
 
 
@@ -137,8 +148,7 @@ def write_held_out_sheet(path: str | Path, views: list, title: str) -> Path:
     figure, axes = plt.subplots(2, len(views), figsize=(2.6 * len(views), 5.8), squeeze=False,
                                 constrained_layout=True)
     for column, (rotation, captured, rendered) in enumerate(views):
-        error = float(np.mean((np.asarray(captured, np.float64) - rendered) ** 2))
-        psnr = 10 * np.log10(1.0 / max(error, 1e-12))
+        ratio = psnr(rendered, captured)
         for row, (image, label) in enumerate(((captured, "captured"), (rendered, "rendered"))):
             axis = axes[row, column]
             axis.imshow(np.clip(image, 0, 1), cmap="gray", vmin=0, vmax=1, interpolation="nearest")
@@ -147,5 +157,5 @@ def write_held_out_sheet(path: str | Path, views: list, title: str) -> Path:
             if column == 0:
                 axis.set_ylabel(label)
         axes[0, column].set_title(f"az {rotation['azimuth']:.1f}, el {rotation['elevation']:.1f}\n"
-                                  f"PSNR {psnr:.1f} dB", fontsize=9)
+                                  f"PSNR {ratio:.1f} dB", fontsize=9)
     return save_figure(figure, path, title)
