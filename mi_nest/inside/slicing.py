@@ -168,10 +168,7 @@ class SliceSpec:
         if not (math.isfinite(self.thickness) and self.thickness > 0):
             raise SliceError(f"the slice thickness must be a positive number of mm, got {self.thickness}")
         whole_number("resolution", self.resolution, minimum=2)
-        if not (math.isfinite(self.load_scale)):
-            raise SliceError(f"the load scale must be a finite number, got {self.load_scale}")
-        if self.wavelength is not None and not (math.isfinite(self.wavelength) and self.wavelength > 0):
-            raise SliceError(f"the wavelength must be a positive number of nm, got {self.wavelength}")
+        _check_light_and_load(self.load_scale, self.wavelength)     # before any scene is loaded
 
     def describe(self) -> str:
         return (f"slice {self.plane.describe()}, {self.thickness:g} mm thick"
@@ -200,11 +197,16 @@ class SliceImage:
         return left, left + self.width * self.pixel, top - self.height * self.pixel, top
 
 
+def _bounding_corners(scene: mi.Scene) -> np.ndarray:
+    """The eight corners (8, 3) of the specimens' bounding box."""
+    low, high = specimen_bounds(specimen_shapes(scene))
+    return np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+
+
 def slice_image(scene: mi.Scene, spec: SliceSpec) -> SliceImage:
     """The pixels of ``spec``'s plane that cover the specimens' outline projected onto it."""
-    low, high = specimen_bounds(specimen_shapes(scene))
     right, up = spec.plane.basis()
-    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+    corners = _bounding_corners(scene)
     across, along = corners @ right, corners @ up
     pixel = max(np.ptp(across), np.ptp(along)) / spec.resolution
     width, height = (max(int(math.ceil(np.ptp(a) / pixel - 1e-9)), 1) for a in (across, along))
@@ -309,12 +311,8 @@ class Slicer:
             begins.append(begin)
             ends.append(end)
             labels.append(np.full(begin.shape, label))
-        begin, end, medium = (np.concatenate(x) for x in (begins, ends, labels))
-        order = np.argsort(begin, axis=0, kind="stable")
-        begin, end, medium = (np.take_along_axis(x, order, axis=0) for x in (begin, end, medium))
-        kept = max(int(np.isfinite(begin).sum(axis=0).max()), 1)
-        medium = np.where(np.isfinite(begin), medium, 0)
-        return begin[:kept], end[:kept], medium[:kept]
+        begin, end, medium = _in_order(*(np.concatenate(x) for x in (begins, ends, labels)))
+        return begin, end, np.where(np.isfinite(begin), medium, 0)
 
 
 def _pairs(crossings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -330,22 +328,22 @@ def _intersect(a: tuple, b: tuple) -> tuple[np.ndarray, np.ndarray]:
     begin = np.maximum(a[0][:, None], b[0][None, :]).reshape(-1, a[0].shape[1])
     end = np.minimum(a[1][:, None], b[1][None, :]).reshape(-1, a[0].shape[1])
     empty = ~(np.isfinite(begin) & (end > begin))
-    begin, end = np.where(empty, np.inf, begin), np.where(empty, np.inf, end)
+    return _in_order(np.where(empty, np.inf, begin), np.where(empty, np.inf, end))
+
+
+def _in_order(begin: np.ndarray, *others: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each line's chords (columns) sorted by ``begin``, ``others`` alike, trimmed to the most any line has."""
     order = np.argsort(begin, axis=0, kind="stable")
-    begin, end = np.take_along_axis(begin, order, axis=0), np.take_along_axis(end, order, axis=0)
     kept = max(int(np.isfinite(begin).sum(axis=0).max()), 1)
-    return begin[:kept], end[:kept]
+    return tuple(np.take_along_axis(x, order, axis=0)[:kept] for x in (begin, *others))
 
 
 def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | None = None) -> float:
     """The factor on every phase of a view at ``load_scale`` times the load and at ``wavelength`` (nm; None:
     the material's): the stress-optic coefficient C is the material's, so the phase goes as 1 / wavelength."""
-    if not math.isfinite(load_scale):
-        raise SliceError(f"the load scale must be a finite number, got {load_scale}")
+    _check_light_and_load(load_scale, wavelength)
     if wavelength is None:
         return float(load_scale)
-    if not (math.isfinite(wavelength) and wavelength > 0):
-        raise SliceError(f"the wavelength must be a positive number of nm, got {wavelength}")
     wavelengths = {medium.wavelength for medium in specimen_media(scene)}
     if len(wavelengths) > 1:
         raise SliceError(f"the specimens' media are given at different wavelengths ({sorted(wavelengths)} nm): "
@@ -353,10 +351,15 @@ def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | No
     return float(load_scale) * wavelengths.pop() / wavelength
 
 
+def _check_light_and_load(load_scale: float, wavelength: float | None) -> None:
+    if not math.isfinite(load_scale):
+        raise SliceError(f"the load scale must be a finite number, got {load_scale}")
+    if wavelength is not None and not (math.isfinite(wavelength) and wavelength > 0):
+        raise SliceError(f"the wavelength must be a positive number of nm, got {wavelength}")
+
+
 def _empty_message(scene, spec):
-    low, high = specimen_bounds(specimen_shapes(scene))
-    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
-    along = corners @ np.asarray(spec.plane.normal)
+    along = _bounding_corners(scene) @ np.asarray(spec.plane.normal)
     where = (f"the specimens span {along.min():.4g} to {along.max():.4g} mm along the normal; move the plane "
              "into that range")
     if spec.region is not None:
