@@ -44,11 +44,21 @@ def timed(totals, name, function, active):
     return wrapper
 
 
+def optimize_stepping_with(scene, data, iterations, step):
+    """``mi_nest.optimize``'s defaults with ``step`` in place of the loop's own for the run."""
+    own = loop.Run.step
+    loop.Run.step = step
+    try:
+        mi_nest.optimize(scene, data, iterations=iterations, progress=False)
+    finally:
+        loop.Run.step = own
+
+
 def phases(scene, data, iterations, first):
     totals = collections.defaultdict(float)
     count = [0]
     active = lambda: count[0] >= first      # noqa: E731
-    saved = (Dataset.ray_batch, ViewRays.rays, loop.l1_loss, loop.Run._check_divergence, loop.Run.step)
+    saved = (Dataset.ray_batch, ViewRays.rays, loop.l1_loss, loop.Run._check_divergence)
     Dataset.ray_batch = timed(totals, "ray_batch (NumPy)", Dataset.ray_batch, active)
     ViewRays.rays = timed(totals, "camera rays", ViewRays.rays, active)
     loop.l1_loss = timed(totals, "loss", loop.l1_loss, active)
@@ -65,11 +75,10 @@ def phases(scene, data, iterations, first):
         result = timed(totals, "whole step", step, active)(self, integrator)
         count[0] += 1
         return result
-    loop.Run.step = counted_step
     try:
-        mi_nest.optimize(scene, data, iterations=iterations, progress=False)
+        optimize_stepping_with(scene, data, iterations, counted_step)
     finally:
-        Dataset.ray_batch, ViewRays.rays, loop.l1_loss, loop.Run._check_divergence, loop.Run.step = saved
+        Dataset.ray_batch, ViewRays.rays, loop.l1_loss, loop.Run._check_divergence = saved
         for kind, (trace, replay) in wrapped.items():
             kind.trace_rays, kind.backpropagate_rays = trace, replay
     return {name: seconds / (iterations - first) for name, seconds in totals.items()}
@@ -79,6 +88,7 @@ def kernels(scene, data, iterations, first):
     totals = {"wall": 0.0, "execution": 0.0, "compile": 0.0, "launches": 0}
     count = [0]
     step = loop.Run.step
+    timed_step = timed(totals, "wall", step, lambda: True)
 
     def recorded_step(self, integrator):
         if count[0] < first:
@@ -86,11 +96,7 @@ def kernels(scene, data, iterations, first):
             return step(self, integrator)
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history()
-        dr.sync_thread()
-        start = time.perf_counter()
-        result = step(self, integrator)
-        dr.sync_thread()
-        totals["wall"] += time.perf_counter() - start
+        result = timed_step(self, integrator)
         history = dr.kernel_history()
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         totals["execution"] += sum(k.get("execution_time", 0) for k in history) / 1000
@@ -98,11 +104,7 @@ def kernels(scene, data, iterations, first):
         totals["launches"] += len(history)
         count[0] += 1
         return result
-    loop.Run.step = recorded_step
-    try:
-        mi_nest.optimize(scene, data, iterations=iterations, progress=False)
-    finally:
-        loop.Run.step = step
+    optimize_stepping_with(scene, data, iterations, recorded_step)
     return {name: value / (iterations - first) for name, value in totals.items()}
 
 
