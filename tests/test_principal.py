@@ -151,3 +151,6 @@ def test_the_principal_command_plots_a_scene_and_refuses_a_plane_beside_it(tmp_p
     assert main(["principal", "lame_cylinder", "--plane", "z=40", "-o", str(tmp_path / "x.png")]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "misses the part" in error and not (tmp_path / "x.png").exists()
+    assert main(["principal", "lame_cylinder", "--plane", "z=0", "--res", "0", "-o", str(tmp_path / "x.png")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "'resolution' must be an integer >= 2, got 0" in error

@@ -35,7 +35,7 @@ def frocht(x, y, load=LOAD, thickness=6.0, diameter=DIAMETER, load_angle=0.0):
 
 
 def pixel_points(scene, spec):
-    image = slice_image(scene, spec)
+    image = slice_image(scene, spec.plane, spec.resolution)
     return image.centres().reshape(image.height, image.width, 3)
 
 

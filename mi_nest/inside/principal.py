@@ -18,7 +18,7 @@ from ..fields.base import sample
 from ..physics.tensors import principal_axes, von_mises
 from ..scene import specimen_shapes
 from .plots import pyplot, save_figure
-from .slicing import Plane, SliceError, SliceImage, SliceSpec, slice_image
+from .slicing import Plane, SliceError, SliceImage, slice_image
 from .source import ViewSource
 
 QUANTITIES = ("sigma_1", "sigma_2", "sigma_3", "von_mises")
@@ -56,7 +56,7 @@ def principal_slice(scene: mi.Scene, plane: Plane, resolution: int = 128, field:
                     deviatoric: bool = False) -> PrincipalSlice:
     """The principal stresses of ``scene``'s specimens (or of ``field`` in them) at ``plane``'s pixels inside
     a specimen; ``deviatoric`` takes the mean stress out first."""
-    image = slice_image(scene, SliceSpec(plane, 1.0, resolution=resolution))
+    image = slice_image(scene, plane, resolution)
     points = image.centres()
     stress = np.full((len(points), 6), np.nan)
     inside = np.zeros(len(points), dtype=bool)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mitsuba as mi
@@ -203,17 +203,19 @@ def _bounding_corners(scene: mi.Scene) -> np.ndarray:
     return np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
 
 
-def slice_image(scene: mi.Scene, spec: SliceSpec) -> SliceImage:
-    """The pixels of ``spec``'s plane that cover the specimens' outline projected onto it."""
-    right, up = spec.plane.basis()
+def slice_image(scene: mi.Scene, plane: Plane, resolution: int) -> SliceImage:
+    """The pixels of ``plane`` that cover the specimens' outline projected onto it, ``resolution`` along its
+    longer side."""
+    resolution = whole_number("resolution", resolution, minimum=2)
+    right, up = plane.basis()
     corners = _bounding_corners(scene)
     across, along = corners @ right, corners @ up
-    pixel = max(np.ptp(across), np.ptp(along)) / spec.resolution
+    pixel = max(np.ptp(across), np.ptp(along)) / resolution
     width, height = (max(int(math.ceil(np.ptp(a) / pixel - 1e-9)), 1) for a in (across, along))
     # Centred on the outline; the plane point is its offset along the normal.
     centre_across = 0.5 * (across.min() + across.max())
     centre_along = 0.5 * (along.min() + along.max())
-    on_plane = spec.plane.offset * np.asarray(spec.plane.normal)
+    on_plane = plane.offset * np.asarray(plane.normal)
     origin = on_plane + (centre_across - 0.5 * width * pixel) * right + (centre_along + 0.5 * height * pixel) * up
     return SliceImage(origin, right, up, pixel, width, height)
 
@@ -253,7 +255,7 @@ class Slicer:
             n = np.asarray(spec.plane.normal)
             low, high = specimen_bounds(specimen_shapes(scene))
             far = float(np.linalg.norm(high - low) + 2 * np.abs(np.concatenate([low, high])).max() + 1.0)
-            image = slice_image(scene, replace(spec, plane=Plane(spec.plane.normal, 0.0)))
+            image = slice_image(scene, Plane(spec.plane.normal, 0.0), spec.resolution)
             starts = image.centres() + far * n
             media = specimen_media(scene)
             inside = tuple(_pairs(occupancy.crossings_along_lines(scene, shape, starts, -n))
@@ -265,7 +267,7 @@ class Slicer:
         """:func:`slice_render` of this scene."""
         start = time.perf_counter()
         scene = self.scene
-        image = slice_image(scene, spec)
+        image = slice_image(scene, spec.plane, spec.resolution)
         lines = self.lines(spec)
         begin, end, medium = self._slab_chords(spec, lines)
         if not np.isfinite(begin).any():
