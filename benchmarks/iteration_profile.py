@@ -26,6 +26,7 @@ import mi_nest
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.dataset.loader import Dataset
 from mi_nest.reconstruct import loop
+from mi_nest.reconstruct.config import option_value
 from mi_nest.reconstruct.rays import ViewRays
 
 from reconstruction import cpu_name
@@ -44,17 +45,17 @@ def timed(totals, name, function, active):
     return wrapper
 
 
-def optimize_stepping_with(scene, data, iterations, step):
-    """``mi_nest.optimize``'s defaults with ``step`` in place of the loop's own for the run."""
+def optimize_stepping_with(scene, data, iterations, step, options):
+    """``mi_nest.optimize``'s defaults (but ``options``) with ``step`` in place of the loop's own for the run."""
     own = loop.Run.step
     loop.Run.step = step
     try:
-        mi_nest.optimize(scene, data, iterations=iterations, progress=False)
+        mi_nest.optimize(scene, data, iterations=iterations, progress=False, **options)
     finally:
         loop.Run.step = own
 
 
-def phases(scene, data, iterations, first):
+def phases(scene, data, iterations, first, options):
     totals = collections.defaultdict(float)
     count = [0]
     active = lambda: count[0] >= first      # noqa: E731
@@ -76,7 +77,7 @@ def phases(scene, data, iterations, first):
         count[0] += 1
         return result
     try:
-        optimize_stepping_with(scene, data, iterations, counted_step)
+        optimize_stepping_with(scene, data, iterations, counted_step, options)
     finally:
         Dataset.ray_batch, ViewRays.rays, loop.l1_loss, loop.Run._check_divergence = saved
         for kind, (trace, replay) in wrapped.items():
@@ -84,7 +85,7 @@ def phases(scene, data, iterations, first):
     return {name: seconds / (iterations - first) for name, seconds in totals.items()}
 
 
-def kernels(scene, data, iterations, first):
+def kernels(scene, data, iterations, first, options):
     totals = {"wall": 0.0, "execution": 0.0, "compile": 0.0, "launches": 0}
     count = [0]
     step = loop.Run.step
@@ -104,7 +105,7 @@ def kernels(scene, data, iterations, first):
         totals["launches"] += len(history)
         count[0] += 1
         return result
-    optimize_stepping_with(scene, data, iterations, recorded_step)
+    optimize_stepping_with(scene, data, iterations, recorded_step, options)
     return {name: value / (iterations - first) for name, value in totals.items()}
 
 
@@ -115,8 +116,11 @@ def main():
     parser.add_argument("--iterations", type=int, default=500)
     parser.add_argument("--first", type=int, help="first iteration measured (default: the last fifth)")
     parser.add_argument("--data", type=Path, help="dataset directory (default: a temporary one)")
+    parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                        help="an option of mi_nest.optimize instead of its default (repeatable)")
     args = parser.parse_args()
     defines = dict(d.split("=", 1) for d in args.defines)
+    options = {name: option_value(name, text) for name, text in (o.split("=", 1) for o in args.option)}
     first = args.first if args.first is not None else args.iterations * 4 // 5
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,10 +130,11 @@ def main():
                      progress=False)
         scene = mi_nest.load_scene(args.scene, res=64, **defines)
         print(f"{cpu_name()}; {args.scene} {defines}, 32 x 32 rotations at 64 x 64, optimize's defaults, "
-              f"iterations {first} to {args.iterations}")
-        for name, seconds in sorted(phases(scene, data, args.iterations, first).items(), key=lambda kv: -kv[1]):
+              f"iterations {first} to {args.iterations}, options {options or 'none'}")
+        measured = phases(scene, data, args.iterations, first, options)
+        for name, seconds in sorted(measured.items(), key=lambda kv: -kv[1]):
             print(f"  {name:32s} {1000 * seconds:7.2f} ms/iteration")
-        totals = kernels(scene, data, args.iterations, first)
+        totals = kernels(scene, data, args.iterations, first, options)
         print(f"  kernels execute {1000 * totals['execution']:.1f} ms of {1000 * totals['wall']:.1f} "
               f"({totals['launches']:.0f} launches), compile {1000 * totals['compile']:.2f} ms, the rest (Python, "
               f"tracing, launching, NumPy) {1000 * (totals['wall'] - totals['execution'] - totals['compile']):.1f} ms")
