@@ -130,7 +130,7 @@ def _parser():
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")
-    reconstruct.add_argument("--iterations", type=int, help="(default: 20000, what the targets needed)")
+    reconstruct.add_argument("--iterations", type=int, help="(default: 15000, what the targets need)")
     reconstruct.add_argument("--minutes", type=float,
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")

@@ -136,6 +136,38 @@ def test_coarse_to_fine_starts_at_most_about_eight_nodes_across(tiny_dataset, re
     assert starts[0] == 0 and starts[-1] == 0.5 and starts == sorted(starts)
 
 
+def test_the_finest_stage_takes_its_share_and_its_own_rays_per_pixel(tiny_dataset):
+    config = OptimizeConfig(iterations=100, field=FieldConfig(kind="grid", resolution=32), finest_stage=0.7,
+                            coarse_pixel_samples=1, pixel_samples=3)
+    run = loop.Run(_scene(), mi_nest.Dataset(tiny_dataset), config, np.zeros(3), np.ones(3), 1.0, None, False)
+    assert run.stages == [(0.0, 8), (pytest.approx(0.15), 16), (pytest.approx(0.3), 32)]
+    samples = {}
+    for iteration in (0, 29, 30, 99):
+        run.iteration = iteration
+        samples[iteration] = run.pixel_samples()
+    assert samples == {0: 1, 29: 1, 30: 3, 99: 3}
+    # Without a coarse count every stage integrates the pixels alike: the dataset's spp (1 here).
+    plain = loop.Run(_scene(), mi_nest.Dataset(tiny_dataset), OptimizeConfig(kind="grid", resolution=32),
+                     np.zeros(3), np.ones(3), 1.0, None, False)
+    assert plain.pixel_samples() == plain.finest_pixel_samples == 1
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="finest_stage"):
+            OptimizeConfig(finest_stage=bad)
+    with pytest.raises(ValueError, match="coarse_pixel_samples"):
+        OptimizeConfig(coarse_pixel_samples=0)
+
+
+def test_a_stage_marches_steps_of_half_its_own_grid_spacing(tiny_dataset):
+    from mi_nest.reconstruct.forward import make_integrator
+    config = OptimizeConfig(field=FieldConfig(kind="grid", resolution=33))
+    scene = _scene()
+    for resolution in (9, 17, 33):
+        field = make_field(FieldConfig(kind="grid", resolution=resolution), (0, 0, 0), (32, 16, 8), 1.0)
+        assert f"step_size={0.5 * 32 / (resolution - 1):g}" in str(make_integrator(config, field, scene))
+    given = OptimizeConfig(field=FieldConfig(kind="grid", resolution=33), step_size=0.25)
+    assert "step_size=0.25" in str(make_integrator(given, field, scene))
+
+
 def _assign_ramp_along_x(field, slope):
     """Every component of a cubic grid rising by ``slope`` across the box along x."""
     n = field.shape[0]

@@ -63,7 +63,8 @@ class Run:
         self.field = make_field(replace(config.field, kind=self.kind, resolution=self.stages[0][1]), low, high,
                                 scale)
         self.view_rays = ViewRays(scene, dataset)
-        self.pixel_samples = int(config.optimiser.pixel_samples or min(4, int(dataset.index.get("spp", 1))))
+        self.finest_pixel_samples = int(config.optimiser.pixel_samples or min(4, int(dataset.index.get("spp", 1))))
+        self.coarse_pixel_samples = int(config.optimiser.coarse_pixel_samples or self.finest_pixel_samples)
         self.rng = np.random.default_rng(config.optimiser.seed)
         self.iteration = 0
         self._rms = None
@@ -91,8 +92,11 @@ class Run:
         while resolutions and resolutions[0] // 2 >= COARSEST_GRID:
             resolutions.insert(0, resolutions[0] // 2)
         resolutions.append(resolution)
-        # The finest stage gets the second half: it has the most unknowns.
-        starts = [0.5 * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 else [0.0]
+        # The finest stage gets its share at the end (by default half: it has the most unknowns); the coarser
+        # stages split the rest evenly.
+        coarse = 1.0 - self.config.schedule.finest_stage
+        starts = [coarse * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 \
+            else [0.0]
         return list(zip(starts, resolutions))
 
     def progress(self) -> float:
@@ -120,6 +124,11 @@ class Run:
         optimiser = self.config.optimiser
         ratio = optimiser.final_learning_rate / optimiser.learning_rate
         return optimiser.learning_rate * ratio ** self.progress()
+
+    def pixel_samples(self) -> int:
+        """Rays per pixel now: the coarse stages choose a branch, which a point sample of each pixel tells as
+        well; the finest stage fits the pixels as the camera integrated them."""
+        return self.finest_pixel_samples if self.in_finest_stage() else self.coarse_pixel_samples
 
     def in_finest_stage(self) -> bool:
         return self.progress() >= self.stages[-1][0]
@@ -167,7 +176,8 @@ class Run:
         try:
             while self.iteration < schedule.iterations and not self.out_of_time():
                 interrupts.check()
-                self._refine_if_due()
+                if self._refine_if_due():
+                    integrator = self.integrator()     # its step follows the grid's spacing
                 if self.fitting_retardance() != phase:
                     # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
                     phase = self.fitting_retardance()
@@ -187,8 +197,8 @@ class Run:
                 if self.iteration % reporting.checkpoint_every == 0 or self.iteration == schedule.iterations:
                     self.checkpoint()
                 if bar is not None:
-                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{self.config.optimiser.batch_size * self.pixel_samples / elapsed:.3g}",
-                                    refresh=False)
+                    rays = self.config.optimiser.batch_size * self.pixel_samples()
+                    bar.set_postfix(loss=f"{loss:.4f}", rays_per_s=f"{rays / elapsed:.3g}", refresh=False)
                     bar.update(min(elapsed, schedule.time_limit - bar.n) if timed else 1)
             if self.error_probe is not None and self.history and "deviatoric_error" not in self.history[-1]:
                 # The run's last point too, however the tracking interval fell.
@@ -209,17 +219,20 @@ class Run:
         self.checkpoint()
         return True
 
-    def _refine_if_due(self):
+    def _refine_if_due(self) -> bool:
+        """Move to the coarse-to-fine stage the progress has reached; whether the field changed."""
         resolution = [r for start, r in self.stages if start <= self.progress()][-1]
-        if self.field.kind == "grid" and self.field.config.resolution != resolution:
-            self.field = refined(self.field, resolution)
-            self.optimizer = self._optimizer()
+        if self.field.kind != "grid" or self.field.config.resolution == resolution:
+            return False
+        self.field = refined(self.field, resolution)
+        self.optimizer = self._optimizer()
+        return True
 
     def step(self, integrator: mi.Integrator) -> float:
         optimiser = self.config.optimiser
         positions, rows, columns, targets = self.dataset.ray_batch(
             optimiser.batch_size, self.rng, views_per_batch=optimiser.views_per_batch, mask=optimiser.mask)
-        samples = self.pixel_samples
+        samples = self.pixel_samples()
         fitting_retardance = self.fitting_retardance()
         if fitting_retardance:
             targets = self.retardance.at(positions, rows, columns)
