@@ -3,7 +3,8 @@
 For each scene, simulates the target dataset once (32 x 32 rotations at 64 x 64:
 the disk at 100 N over 4 mm contacts, the kitten at a fringe value of 4500 N/mm),
 then reconstructs it with each version's defaults, the command a user types,
-from the same files. Each version runs in its own process from a copy of its
+from the same files (``--flags`` adds flags to this checkout's command, e.g.
+``--flags=--fast``). Each version runs in its own process from a copy of its
 tree laid out as a wheel installs it. The script prints, per run, the
 optimisation time (the runs' own clock, which leaves out loading and the final
 evaluation), the final deviatoric error against the scene's target, the peak
@@ -13,7 +14,7 @@ optimisation times. It writes ``time_to_accuracy.csv`` and a plot of the error
 against the optimisation time to ``--output``.
 
     git worktree add /tmp/before 04d869c
-    python benchmarks/time_to_accuracy.py --baseline /tmp/before --output /tmp/tta
+    python benchmarks/time_to_accuracy.py --baseline /tmp/before --output /tmp/tta --flags=--fast
 
 The runs take minutes each (the baseline's about a quarter of an hour per scene
 on 2 cores); run nothing else beside them.
@@ -56,10 +57,10 @@ def resident_mib(pid: int) -> float | None:
     return None
 
 
-def reconstruct(path_entry: Path, data: Path, output: Path) -> dict:
-    """One version's defaults on ``data``, its resident memory sampled every half second."""
+def reconstruct(path_entry: Path, data: Path, output: Path, flags: list[str]) -> dict:
+    """One version's defaults (and ``flags``) on ``data``, its resident memory sampled every half second."""
     command = [sys.executable, "-c", CLI, "reconstruct", str(data), "-o", str(output), "--restart",
-               "--no-progress", "--option", "track_error_every=500"]
+               "--no-progress", "--option", "track_error_every=500", *flags]
     child = subprocess.Popen(command, env={**os.environ, "PYTHONPATH": str(path_entry)}, cwd=path_entry,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     samples = []
@@ -88,6 +89,7 @@ def main():
     parser.add_argument("--scenes", default="kitten,disk", help="comma-separated: disk, kitten")
     parser.add_argument("--output", type=Path, default=Path("time_to_accuracy"))
     parser.add_argument("--data", type=Path, help="where the datasets are kept (default: under --output)")
+    parser.add_argument("--flags", default="", help="flags added to this checkout's command (e.g. --flags=--fast)")
     args = parser.parse_args()
     names = args.scenes.split(",")
     unknown = sorted(set(names) - set(SCENES))
@@ -95,8 +97,8 @@ def main():
         raise SystemExit(f"unknown scene(s) {unknown}; choose from {sorted(SCENES)}")
     args.output.mkdir(parents=True, exist_ok=True)
     data_root = args.data or args.output / "data"
-    print(f"{cpu_name()}; `mi-nest reconstruct DATA -o OUT` (each version's defaults), 32 x 32 rotations at 64 x 64",
-          flush=True)
+    print(f"{cpu_name()}; `mi-nest reconstruct DATA -o OUT` (each version's defaults; this checkout's with "
+          f"'{args.flags}'), 32 x 32 rotations at 64 x 64", flush=True)
     rows, histories = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -109,7 +111,8 @@ def main():
             simulate(scene, defines, data)
             seconds = {}
             for version, path_entry in versions.items():
-                run = reconstruct(path_entry, data, args.output / "results" / f"{name}_{version.replace(' ', '_')}")
+                run = reconstruct(path_entry, data, args.output / "results" / f"{name}_{version.replace(' ', '_')}",
+                                  args.flags.split() if version == "this checkout" else [])
                 record = run["record"]
                 error = record["metrics"]["deviatoric_error"]
                 seconds[version] = record["seconds"]

@@ -130,13 +130,17 @@ def _parser():
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
     reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")
-    reconstruct.add_argument("--iterations", type=int, help="(default: 15000, what the targets need)")
+    reconstruct.add_argument("--iterations", type=int, help="(default: 20000, what the targets needed)")
     reconstruct.add_argument("--minutes", type=float,
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")
     reconstruct.add_argument("--resolution", type=int,
                              help="grid nodes along the longest axis (default: 32, 48 or 64, the coarsest that puts "
                                   "10 nodes across the specimen's thinnest side)")
+    reconstruct.add_argument("--fast", action="store_true",
+                             help="the defaults' schedule 2.5x faster, ending about 0.3 points of stress error above "
+                                  "them (FAST_OPTIONS: 16,000 iterations of 1,024 pixels, 1 ray per pixel in the "
+                                  "coarse stages; flags and --option given override it)")
     reconstruct.add_argument("--no-regulariser", action="store_true",
                              help="the plain fit, without the grid's default smoothness and iterate averaging")
     reconstruct.add_argument("--option", dest="options", action="append", type=parse_define, default=[],
@@ -425,8 +429,12 @@ def _reconstruction_scene(args, dataset):
 
 def _reconstruction_options(args):
     """``optimize``'s options from the flags given."""
-    from .reconstruct import NO_REGULARISER, option_value
-    options = {"kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {})}
+    from .reconstruct import FAST_OPTIONS, NO_REGULARISER, option_value
+    # --fast's averaging is a regulariser's part, and with --minutes the clock, not its iterations, ends the run.
+    dropped = {name for name, drop in (("average_last", args.no_regulariser), ("iterations", args.minutes is not None))
+               if drop}
+    fast = {k: v for k, v in FAST_OPTIONS.items() if k not in dropped} if args.fast else {}
+    options = {**fast, "kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {})}
     for name, text in args.options:
         options[name.replace("-", "_")] = option_value(name.replace("-", "_"), text)
     for name in ("iterations", "resolution", "method"):

@@ -16,7 +16,7 @@ DEFAULT_SCENE = "disk_compression"
 # loads are 1/r singular: no grid could hold them). At 100 N the fringes alias in half the views and the fit
 # settles in wrapped minima (34 to 69% error); at 60 N, with the targets' regulariser, 10.6% for two seeds.
 DEMO_LOAD, DEMO_CONTACT, DEMO_RES, DEMO_ROTATIONS = 60.0, 4.0, 48, 12
-# The defaults, shortened to a demo's length: a quarter of their iterations, on a grid with half the nodes along
+# The defaults, shortened to a demo's length: a fifth of their iterations, on a grid with half the nodes along
 # each axis that the disk's thickness would get (eight times fewer unknowns for the shorter run).
 DEMO_GRID, DEMO_ITERATIONS = 32, 4000
 

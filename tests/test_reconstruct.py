@@ -512,6 +512,27 @@ def test_cli_defaults_to_the_targets_regulariser_and_options_override_it(tiny_da
     assert not (tmp_path / "bad").exists()
 
 
+def test_cli_fast_takes_the_fast_options_and_flags_override_them(tiny_dataset, tmp_path):
+    from mi_nest.cli import _parser, _reconstruction_options
+    from mi_nest.reconstruct import FAST_OPTIONS
+
+    def options(*flags):
+        return _reconstruction_options(_parser().parse_args(["reconstruct", "DATA", "-o", "OUT", *flags]))
+
+    assert {k: options("--fast")[k] for k in FAST_OPTIONS} == FAST_OPTIONS
+    assert OptimizeConfig(**FAST_OPTIONS).optimiser.coarse_pixel_samples == 1
+    assert options("--fast", "--iterations", "7")["iterations"] == 7
+    assert options("--fast", "--option", "batch_size=64")["batch_size"] == 64
+    # The clock ends a timed run, not --fast's iteration count; the plain fit averages nothing.
+    assert options("--fast", "--minutes", "2")["iterations"] == options("--minutes", "2")["iterations"] > 10 ** 6
+    assert "average_last" not in options("--fast", "--no-regulariser")
+    assert "batch_size" not in options()
+    assert main(["reconstruct", str(tiny_dataset), "--fast", "--iterations", "2", "--option", "batch_size=64",
+                 "--resolution", "6", "--no-progress", "-o", str(tmp_path / "fast")]) == 0
+    record = json.loads((tmp_path / "fast" / "reconstruction.json").read_text())["config"]
+    assert record["optimiser"]["coarse_pixel_samples"] == 1 and record["schedule"]["finest_stage"] == 0.4
+
+
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):
     result = optimize(_scene(), tiny_dataset, output=tmp_path / "run", progress=False,
                       **{**FAST, "iterations": 10_000, "time_limit": 0.2, "kind": "grid", "track_error_every": 10_000})

@@ -1,6 +1,6 @@
 """Inverse reconstruction (NeST tomography): trainable fields, the optimiser, metrics."""
 from .checkpoints import CheckpointError, Reconstruction
-from .config import (NO_REGULARISER, REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser, Regulariser,
+from .config import (FAST_OPTIONS, NO_REGULARISER, REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser, Regulariser,
                      Reporting, Schedule, option_names, option_value)
 from .fields import DeviatoricGrid, HashGridField, MLPField, TrainableField, make_field
 from .loop import DivergenceError
@@ -8,5 +8,5 @@ from .optimization import optimize
 
 __all__ = ["optimize", "OptimizeConfig", "Schedule", "Optimiser", "ForwardModel", "Regulariser", "Reporting",
            "Reconstruction", "DivergenceError", "CheckpointError", "FieldConfig", "TrainableField", "DeviatoricGrid",
-           "HashGridField", "MLPField", "make_field", "REGULARISED", "NO_REGULARISER",
+           "HashGridField", "MLPField", "make_field", "REGULARISED", "NO_REGULARISER", "FAST_OPTIONS",
            "option_names", "option_value"]
