@@ -61,17 +61,19 @@ def reconstruct(path_entry: Path, data: Path, output: Path, flags: list[str]) ->
     """One version's defaults (and ``flags``) on ``data``, its resident memory sampled every half second."""
     command = [sys.executable, "-c", CLI, "reconstruct", str(data), "-o", str(output), "--restart",
                "--no-progress", "--option", "track_error_every=500", *flags]
-    child = subprocess.Popen(command, env={**os.environ, "PYTHONPATH": str(path_entry)}, cwd=path_entry,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     samples = []
-    while child.poll() is None:
-        value = resident_mib(child.pid)
-        if value is not None:
-            samples.append(value)
-        time.sleep(0.5)
-    stderr = child.stderr.read()
-    if child.returncode != 0:
-        raise SystemExit(f"the run from {path_entry} failed:\n{stderr[-3000:]}")
+    # stderr to a file: a pipe nobody reads during the run would block the child once its buffer fills.
+    with tempfile.TemporaryFile("w+") as errors:
+        child = subprocess.Popen(command, env={**os.environ, "PYTHONPATH": str(path_entry)}, cwd=path_entry,
+                                 stdout=subprocess.DEVNULL, stderr=errors, text=True)
+        while child.poll() is None:
+            value = resident_mib(child.pid)
+            if value is not None:
+                samples.append(value)
+            time.sleep(0.5)
+        if child.returncode != 0:
+            errors.seek(0)
+            raise SystemExit(f"the run from {path_entry} failed:\n{errors.read()[-3000:]}")
     record = json.loads((output / "reconstruction.json").read_text())
     return {"record": record, "rss": samples}
 

@@ -430,10 +430,11 @@ def _reconstruction_scene(args, dataset):
 def _reconstruction_options(args):
     """``optimize``'s options from the flags given."""
     from .reconstruct import FAST_OPTIONS, NO_REGULARISER, option_value
-    # --fast's averaging is a regulariser's part, and with --minutes the clock, not its iterations, ends the run.
-    dropped = {name for name, drop in (("average_last", args.no_regulariser), ("iterations", args.minutes is not None))
-               if drop}
-    fast = {k: v for k, v in FAST_OPTIONS.items() if k not in dropped} if args.fast else {}
+    fast = dict(FAST_OPTIONS) if args.fast else {}
+    if args.no_regulariser:
+        fast.pop("average_last", None)      # --fast's averaging is a part of the regulariser left out
+    if args.minutes is not None:
+        fast.pop("iterations", None)        # the clock ends the run, not --fast's iteration count
     options = {**fast, "kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {})}
     for name, text in args.options:
         options[name.replace("-", "_")] = option_value(name.replace("-", "_"), text)

@@ -1,7 +1,7 @@
 """Inverse reconstruction (NeST tomography): trainable fields, the optimiser, metrics."""
 from .checkpoints import CheckpointError, Reconstruction
-from .config import (FAST_OPTIONS, NO_REGULARISER, REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser, Regulariser,
-                     Reporting, Schedule, option_names, option_value)
+from .config import (FAST_OPTIONS, NO_REGULARISER, REGULARISED, FieldConfig, ForwardModel, OptimizeConfig, Optimiser,
+                     Regulariser, Reporting, Schedule, option_names, option_value)
 from .fields import DeviatoricGrid, HashGridField, MLPField, TrainableField, make_field
 from .loop import DivergenceError
 from .optimization import optimize
