@@ -87,6 +87,7 @@ def phases(scene, data, iterations, first, options):
 
 def kernels(scene, data, iterations, first, options):
     totals = {"wall": 0.0, "execution": 0.0, "compile": 0.0, "launches": 0}
+    by_kernel = collections.defaultdict(float)
     count = [0]
     step = loop.Run.step
     timed_step = timed(totals, "wall", step, lambda: True)
@@ -103,10 +104,13 @@ def kernels(scene, data, iterations, first, options):
         totals["execution"] += sum(k.get("execution_time", 0) for k in history) / 1000
         totals["compile"] += sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in history) / 1000
         totals["launches"] += len(history)
+        for k in history:
+            by_kernel[f"{k.get('operation_count', 0)} ops, {k.get('size', 0)} lanes"] += k.get("execution_time", 0) / 1000
         count[0] += 1
         return result
     optimize_stepping_with(scene, data, iterations, recorded_step, options)
-    return {name: value / (iterations - first) for name, value in totals.items()}
+    totals["kernels"] = {name: seconds / (iterations - first) for name, seconds in by_kernel.items()}
+    return {name: value / (iterations - first) if name != "kernels" else value for name, value in totals.items()}
 
 
 def main():
@@ -135,6 +139,9 @@ def main():
         for name, seconds in sorted(measured.items(), key=lambda kv: -kv[1]):
             print(f"  {name:32s} {1000 * seconds:7.2f} ms/iteration")
         totals = kernels(scene, data, args.iterations, first, options)
+        print("  largest kernels (IR operations, lanes):")
+        for name, seconds in sorted(totals["kernels"].items(), key=lambda kv: -kv[1])[:6]:
+            print(f"    {name:30s} {1000 * seconds:7.2f} ms/iteration")
         print(f"  kernels execute {1000 * totals['execution']:.1f} ms of {1000 * totals['wall']:.1f} "
               f"({totals['launches']:.0f} launches), compile {1000 * totals['compile']:.2f} ms, the rest (Python, "
               f"tracing, launching, NumPy) {1000 * (totals['wall'] - totals['execution'] - totals['compile']):.1f} ms")

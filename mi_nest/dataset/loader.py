@@ -37,6 +37,7 @@ class _DecodedView:
         self.images = images
         self.measured = np.stack([images[n] for n in channels], axis=-1)
         self.measured.flags.writeable = False   # shared by every caller
+        self.measured_pixels = self.measured.reshape(-1, len(channels))     # a view: (H * W, C)
         self.mask_pixels = {}
         # Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far.
         self.nbytes = sum(a.nbytes for a in images.values()) + self.measured.nbytes
@@ -64,6 +65,7 @@ class Dataset:
         self.resolution = tuple(self.index["resolution"])        # (width, height)
         self.channels = tuple(self.index["channels"])
         self._cache = OrderedDict()
+        self._splits = {}
         self._cache_bytes = int(cache_bytes)
 
     def __len__(self):
@@ -75,9 +77,14 @@ class Dataset:
 
     def split(self, name: str) -> list[int]:
         """Positions (into ``rotations``) of the ``train`` or ``test`` rotations."""
+        return self._split_positions(name).tolist()
+
+    def _split_positions(self, name: str) -> np.ndarray:
         if name not in ("train", "test"):
             raise ValueError(f"split must be 'train' or 'test', got '{name}'")
-        return [i for i, r in enumerate(self.rotations) if r["split"] == name]
+        if name not in self._splits:
+            self._splits[name] = np.array([i for i, r in enumerate(self.rotations) if r["split"] == name], dtype=int)
+        return self._splits[name]
 
     def polariscopes(self) -> tuple[Polariscope, ...]:
         """The polariscope each channel was measured with, in ``channels`` order.
@@ -176,26 +183,22 @@ class Dataset:
         decodes few files however large the dataset; pixels come from ``mask``
         (None: anywhere).
         """
-        pool = self.split(split)
-        if not pool:
+        pool = self._split_positions(split)
+        if not pool.size:
             raise ValueError(f"the dataset has no '{split}' rotations")
         chosen = rng.choice(pool, size=min(views_per_batch, len(pool)), replace=False)
         per_view = np.diff(np.linspace(0, size, len(chosen) + 1).round().astype(int))
-        positions, rows, columns, targets = [], [], [], []
         if mask is not None:
             self._require_channels([mask])
-        for position, count in zip(chosen, per_view):
-            decoded, candidates = self._pixels_inside(position, mask)
-            measured = decoded.measured
-            if candidates.size == 0:
-                continue
-            picked = rng.choice(candidates, size=count, replace=True)
-            r, c = np.unravel_index(picked, measured.shape[:2])
-            positions.append(np.full(count, position))
-            rows.append(r)
-            columns.append(c)
-            targets.append(measured[r, c])
-        if not positions:
+        views = [(position, count, *self._pixels_inside(position, mask)) for position, count in zip(chosen, per_view)]
+        views = [view for view in views if view[3].size]
+        if not views:
             raise ValueError(f"no pixel inside '{mask}' in the chosen rotations")
-        return (np.concatenate(positions), np.concatenate(rows), np.concatenate(columns),
-                np.concatenate(targets))
+        positions, counts, decoded, candidates = zip(*views)
+        # One draw for the whole batch: the same numbers as one rng.choice(candidates, count) per view in turn.
+        draws = rng.integers(0, np.repeat([c.size for c in candidates], counts))
+        ends = np.cumsum(counts)
+        picked = [c[draws[end - count:end]] for c, count, end in zip(candidates, counts, ends)]
+        targets = np.concatenate([view.measured_pixels[p] for view, p in zip(decoded, picked)])
+        rows, columns = np.divmod(np.concatenate(picked), self.resolution[0])
+        return np.repeat(positions, counts), rows, columns, targets

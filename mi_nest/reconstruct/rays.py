@@ -1,6 +1,7 @@
 """Camera rays of dataset pixels: the scene's polariscope camera moved to each rotation's pose."""
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -33,23 +34,28 @@ class ViewRays:
         if jitter is None:
             jitter = np.full((len(rows), 2), 0.5)
         width, height = self.dataset.resolution
-        film = np.stack([(columns + jitter[:, 0]) / width, (rows + jitter[:, 1]) / height], axis=-1)
+        film = np.stack([(columns + jitter[:, 0]) / width, (rows + jitter[:, 1]) / height])
+        ray, _ = self.sensor.sample_ray(0.0, 0.0, device_array(mi.Point2f, film), mi.Point2f(0.5, 0.5))
         # The camera at rotation p is the camera as it stands moved by M_p = to_world_p current^-1, and so
-        # are its rays: one sampling pass serves every rotation of the batch.
-        ray, _ = self.sensor.sample_ray(0.0, 0.0, mi.Point2f(film.T.astype(np.float32)), mi.Point2f(0.5, 0.5))
-        # An orthographic camera returns one direction for all rays.
-        origins, directions = (np.broadcast_to(np.array(x, dtype=np.float64).T, (len(rows), 3))
-                               for x in (ray.o, ray.d))
-        current = np.array(self.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+        # are its rays: one sampling pass serves every rotation of the batch. The moves are gathered per
+        # ray on the device, so the rays stay unevaluated until the march that reads them.
         views, index = np.unique(positions, return_inverse=True)
+        moves, rights = self._moves(views)
+        ray_view = device_array(mi.UInt32, index, np.uint32)
+        row = [dr.gather(mi.Vector4f, moves, ray_view * 3 + i) for i in range(3)]
+        o, d = mi.Point3f(ray.o), mi.Vector3f(ray.d)
+        origins = mi.Point3f(*(dr.fma(r.x, o.x, dr.fma(r.y, o.y, dr.fma(r.z, o.z, r.w))) for r in row))
+        directions = dr.normalize(mi.Vector3f(*(dr.fma(r.x, d.x, dr.fma(r.y, d.y, r.z * d.z)) for r in row)))
+        return mi.Ray3f(origins, directions), dr.gather(mi.Vector3f, rights, ray_view)
+
+    def _moves(self, views: np.ndarray) -> tuple[mi.Float, mi.Float]:
+        """The top three rows of each rotation's move ``M_p`` and its image-right direction, flat on the
+        device (12 and 3 numbers per rotation of ``views``)."""
+        current = np.array(self.sensor.world_transform().matrix, dtype=np.float64).reshape(4, 4)
         poses = np.stack([self.dataset.to_world(int(p)) for p in views])
-        moves = (poses @ np.linalg.inv(current))[index]
-        origins = np.einsum("nij,nj->ni", moves[:, :3, :3], origins) + moves[:, :3, 3]
-        directions = np.einsum("nij,nj->ni", moves[:, :3, :3], directions)
-        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-        rights = -poses[index, :3, 0] / np.linalg.norm(poses[index, :3, 0], axis=1, keepdims=True)
-        return (mi.Ray3f(device_array(mi.Point3f, origins.T), device_array(mi.Vector3f, directions.T)),
-                device_array(mi.Vector3f, rights.T))
+        moves = (poses @ np.linalg.inv(current))[:, :3, :]
+        rights = -poses[:, :3, 0] / np.linalg.norm(poses[:, :3, 0], axis=1, keepdims=True)
+        return device_array(mi.Float, moves.ravel()), device_array(mi.Float, rights.ravel())
 
     def view(self, position: int) -> tuple[mi.Ray3f, mi.Vector3f]:
         """Rays through every pixel centre of rotation ``position``, row-major."""
