@@ -10,6 +10,7 @@ per view.
 """
 from __future__ import annotations
 
+import collections
 import math
 import time
 from dataclasses import replace
@@ -34,8 +35,9 @@ from .two_step import RetardanceTargets
 
 # Nodes along the longest axis of the first coarse-to-fine stage.
 COARSEST_GRID = 8
-# A gradient this many times the median of the recent ones counts as exploding.
+# A gradient this many times the median of the RECENT_GRADIENTS before it counts as exploding.
 EXPLODING_FACTOR = 1e4
+RECENT_GRADIENTS = 20
 # A field beyond this many stress scales (each about one fringe across the specimen) per pixel across the
 # dataset's images has run away: 40 times the Nyquist limit, no image could tell its phase. The true fields
 # of the shipped scenes stay below 3 per pixel at any resolution their datasets use.
@@ -70,7 +72,7 @@ class Run:
         self._rms = None
         self.history = []
         self.seconds = 0.0
-        self.gradient_norms = []
+        self.gradient_norms = collections.deque(maxlen=RECENT_GRADIENTS)    # bounded: memory stays flat
         self.optimizer = self._optimizer()
         self.last_good = None
         self.iterate_sums, self.iterates_averaged = {}, 0
@@ -310,8 +312,8 @@ class Run:
             reason = f"the loss is {loss}"
         elif not math.isfinite(norm):
             reason = f"the gradient norm is {norm}"
-        elif len(self.gradient_norms) >= 20 and norm > EXPLODING_FACTOR * np.median(self.gradient_norms[-20:]):
-            reason = (f"the gradient norm {norm:.3g} is {norm / np.median(self.gradient_norms[-20:]):.3g} times the "
+        elif len(self.gradient_norms) == RECENT_GRADIENTS and norm > EXPLODING_FACTOR * np.median(self.gradient_norms):
+            reason = (f"the gradient norm {norm:.3g} is {norm / np.median(self.gradient_norms):.3g} times the "
                       "recent median (exploding)")
         if reason is None:
             self.gradient_norms.append(norm)
