@@ -104,8 +104,9 @@ def kernels(scene, data, iterations, first, options):
         totals["execution"] += sum(k.get("execution_time", 0) for k in history) / 1000
         totals["compile"] += sum(k.get("codegen_time", 0) + k.get("backend_time", 0) for k in history) / 1000
         totals["launches"] += len(history)
-        for k in history:
-            by_kernel[f"{k.get('operation_count', 0)} ops, {k.get('size', 0)} lanes"] += k.get("execution_time", 0) / 1000
+        for kernel in history:
+            name = f"{kernel.get('operation_count', 0)} ops, {kernel.get('size', 0)} lanes"
+            by_kernel[name] += kernel.get("execution_time", 0) / 1000
         count[0] += 1
         return result
     optimize_stepping_with(scene, data, iterations, recorded_step, options)
