@@ -25,9 +25,12 @@ METHODS = FORWARD_MODELS + ("two-step",)
 KINDS = ("grid", "hashgrid", "mlp")
 
 
-def _require_share(name, value, of="the run", closed=False):
-    if not (0 <= value <= 1 if closed else 0 <= value < 1):
-        raise ValueError(f"'{name}' is a share of {of} in [0, 1{']' if closed else ')'}, got {value}")
+def _require_share(name, value, of="the run", closed=False, positive=False):
+    """``value`` in [0, 1), or with ``closed`` up to 1 included, and with ``positive`` above 0."""
+    above_low = 0 < value if positive else 0 <= value
+    if not (above_low and (value <= 1 if closed else value < 1)):
+        raise ValueError(f"'{name}' is a share of {of} in {'(' if positive else '['}0, 1{']' if closed else ')'}, "
+                         f"got {value}")
 
 
 def _require_positive(name, value, what="positive"):
@@ -52,8 +55,7 @@ class Schedule:
             raise ValueError(f"'time_limit' must be a positive number of seconds, got {self.time_limit}")
         _require_share("path_curriculum", self.path_curriculum, of="the iterations", closed=True)
         _require_share("warm_start", self.warm_start)
-        if not 0 < self.finest_stage <= 1:
-            raise ValueError(f"'finest_stage' is a share of the run in (0, 1], got {self.finest_stage}")
+        _require_share("finest_stage", self.finest_stage, closed=True, positive=True)
 
 
 @dataclass(frozen=True)
