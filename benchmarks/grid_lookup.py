@@ -5,11 +5,10 @@ ray in one symbolic loop (the shape of ``benchmarks/forward.py --field grid``),
 and sums the channels so that nothing is optimised away. Compares the loop
 without a lookup (a closed-form stand-in with as many outputs), ``mi.Texture3f``
 with 6 channels (what ``GridField`` stores; Dr.Jit pads them to 8), 4 and 2
-channels, a half-precision ``Texture3f16`` with 6, and a hand-written trilinear
-lookup of 2 channels (what one view's projected stress would need: for an
-orthographic view every ray shares its transverse frame) with each node's +x
-neighbour stored beside it (``XPairGrid``). The best of ``--repeats`` runs,
-interleaved.
+channels, a half-precision ``Texture3f16`` with 6, and the hand-written trilinear
+lookup of 2 channels with each node's +x neighbour stored beside it that an
+orthographic render of a grid uses (``ProjectedGrid``: every ray of such a view
+shares its transverse frame). The best of ``--repeats`` runs, interleaved.
 
     python benchmarks/grid_lookup.py
 """
@@ -23,6 +22,8 @@ import mitsuba as mi
 import numpy as np
 
 import mi_nest  # noqa: F401  (the variant)
+from mi_nest.fields.grid import GridField, ProjectedGrid
+from mi_nest.io.grid import StressGrid
 
 from reconstruction import cpu_name
 
@@ -48,32 +49,11 @@ def lookup_loop(lookup, channels, rays, steps):
     return run
 
 
-class XPairGrid:
-    """Two channels (a view's projected stress ``(p, q)``) stored with each node's +x neighbour beside it: a
-    trilinear lookup is four gathers of one 4-float packet (the Texture3f's is eight of 8 floats)."""
-
-    def __init__(self, values: np.ndarray):
-        nz, ny, nx, _ = values.shape
-        pairs = np.concatenate([values, values[:, :, np.minimum(np.arange(nx) + 1, nx - 1)]], axis=-1)
-        self.flat = mi.Float(np.ascontiguousarray(pairs, dtype=np.float32).ravel())
-        self.shape = (nx, ny, nz)
-
-    def eval(self, p: mi.Point3f) -> list[mi.Float]:
-        nx, ny, nz = self.shape
-        cells, fractions = [], []
-        for coordinate, n in zip((p.x, p.y, p.z), self.shape):
-            t = dr.clip(coordinate * (n - 1), 0.0, n - 1.0)
-            cell = dr.minimum(mi.UInt32(t), n - 2)
-            cells.append(cell)
-            fractions.append(t - mi.Float(cell))
-        fx, fy, fz = fractions
-        base = (cells[2] * ny + cells[1]) * nx + cells[0]
-        corner = [dr.gather(mi.Vector4f, self.flat, base + offset) for offset in (0, nx, nx * ny, nx * ny + nx)]
-        along_x = [dr.fma(fx, mi.Vector2f(c.z, c.w) - mi.Vector2f(c.x, c.y), mi.Vector2f(c.x, c.y)) for c in corner]
-        near = dr.fma(fy, along_x[1] - along_x[0], along_x[0])
-        far = dr.fma(fy, along_x[3] - along_x[2], along_x[2])
-        value = dr.fma(fz, far - near, near)
-        return [value.x, value.y]
+def x_pair_grid(values: np.ndarray) -> ProjectedGrid:
+    """The first two of ``values``'s channels as :class:`ProjectedGrid` stores and looks them up (each node
+    beside its +x neighbour: four gathers of one 4-float packet), over the unit cube."""
+    unit = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return ProjectedGrid(GridField(StressGrid(values, np.zeros(3), np.ones(3))), unit, unit[-1:] + unit[:-1])
 
 
 def main():
@@ -95,9 +75,9 @@ def main():
              "Texture3f, 4 channels": (texture(4).eval, 4),
              "Texture3f, 2 channels": (texture(2).eval, 2),
              "Texture3f16 (half), 6 channels": (half.eval, 6),
-             "x-pair grid, 2 channels (manual)": (XPairGrid(values[..., :2]).eval, 2)}
+             "x-pair grid, 2 channels (ProjectedGrid)": (x_pair_grid(values).eval, 2)}
     # The hand-written lookup must agree with the texture's (whose [0, 1] spans texel edges, not nodes).
-    pairs, two = XPairGrid(values[..., :2]), texture(2)
+    pairs, two = x_pair_grid(values), texture(2)
     points = mi.Point3f(np.random.default_rng(1).random((3, 1000)).astype(np.float32))
     nodes = mi.Vector3f(args.nodes)
     disagreement = max(float(dr.max(dr.abs(a - b))[0]) for a, b in
@@ -114,7 +94,7 @@ def main():
     print(f"{cpu_name()}; {args.res}^2 rays x {args.steps} lookups in a {args.nodes}^3 grid, best of {args.repeats}; "
           f"the x-pair lookup agrees with the texture's within {disagreement:.1e}")
     for name, seconds in best.items():
-        print(f"  {name:36s} {1000 * seconds:7.1f} ms  {rays * args.steps / seconds:.3e} lookups/s")
+        print(f"  {name:40s} {1000 * seconds:7.1f} ms  {rays * args.steps / seconds:.3e} lookups/s")
 
 
 if __name__ == "__main__":

@@ -110,6 +110,52 @@ def test_grid_medium_renders_like_the_model_and_is_differentiable(tmp_path):
     np.testing.assert_allclose(mi_nest.render(gridded_scene).channels["char.delta"], 0.0, atol=1e-6)
 
 
+def test_projected_grid_equals_the_projected_texture_lookup_inside_and_outside():
+    from mi_nest.fields.grid import ProjectedGrid
+    from mi_nest.physics import projection
+    grid, _ = sampled_grid(DiskCompressionField(diameter=8.0, thickness=4.0, load=50.0, contact_width=2.0), shape=(7, 9, 6),
+                           bbox_min=(-3, -2, -1), bbox_max=(3, 2, 4))
+    field = GridField(grid)
+    direction = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    u, v = projection.transverse_basis(tuple(-direction), (1.0, 0.2, 0.0))
+    alpha, beta = projection.projection_coefficients(u, v)
+    projected = ProjectedGrid(field, alpha, beta)
+    rng = np.random.default_rng(3)
+    points = np.stack([rng.uniform(lo - 1, hi + 1, 500) for lo, hi in zip(grid.bbox_min, grid.bbox_max)],
+                      axis=1)
+    p = mi.Point3f(points.T.astype(np.float32))
+    expected = projection.apply_coefficients((alpha, beta), field.eval(p))
+    for got, want in zip(projected.eval(p), expected):
+        np.testing.assert_allclose(np.array(got), np.array(want), atol=2e-5 * np.abs(grid.stress).max())
+
+
+@pytest.mark.filterwarnings("ignore:photoelastic. fringes denser")
+@pytest.mark.parametrize("projection", ["orthographic", "perspective"])
+def test_grid_renders_the_same_through_the_projected_lookup(tmp_path, monkeypatch, projection):
+    """An orthographic camera's grid render looks up the view's projected two channels (ProjectedGrid); it
+    must give the general six-channel lookup's image. A perspective camera's rays differ in frame: no
+    projection."""
+    from scenes import scene
+    from mi_nest.integration.setup import SceneSetup
+    grid, _ = sampled_grid(DiskCompressionField(diameter=24.0, thickness=6.0, load=150.0, contact_width=4.0), shape=(12, 17, 15),
+                           bbox_min=(-10, -10, -3), bbox_max=(10, 10, 3))
+    save_stress_grid(tmp_path / "disk.npz", grid)
+    shapes = [box((20, 20, 6), interior={"type": "stress", "stress_optic_coefficient": 50.0,
+                                         "filename": str(tmp_path / "disk.npz")})]
+    options = dict(res=32, view=9.0, step=0.2, projection=projection, origin=(40.0, -30.0, 60.0),
+                   up=(0.3, 1.0, 0.0), input_qwp=45.0, output_qwp=-45.0)
+    used = []
+    own = SceneSetup._projected_grid
+    monkeypatch.setattr(SceneSetup, "_projected_grid", lambda *a: used.append(own(*a)) or used[-1])
+    projected = mi_nest.render(scene(shapes, **options)).channels
+    assert used and all((p is not None) == (projection == "orthographic") for p in used)
+    monkeypatch.setattr(SceneSetup, "_projected_grid", lambda *a: None)
+    general = mi_nest.render(scene(shapes, **options)).channels
+    assert np.ptp(general["char.delta"]) > 1.0      # several fringes: the frames matter
+    for name in general:
+        np.testing.assert_allclose(projected[name], general[name], atol=2e-5, err_msg=name)
+
+
 def test_saved_files_are_readable_like_normal_files(tmp_path):
     import os
     import stat
