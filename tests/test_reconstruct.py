@@ -530,7 +530,8 @@ def test_cli_fast_takes_the_fast_options_and_flags_override_them(tiny_dataset, t
     assert main(["reconstruct", str(tiny_dataset), "--fast", "--iterations", "2", "--option", "batch_size=64",
                  "--resolution", "6", "--no-progress", "-o", str(tmp_path / "fast")]) == 0
     record = json.loads((tmp_path / "fast" / "reconstruction.json").read_text())["config"]
-    assert record["optimiser"]["coarse_pixel_samples"] == 1 and record["schedule"]["finest_stage"] == 0.4
+    assert record["optimiser"]["coarse_pixel_samples"] == 1
+    assert record["schedule"]["finest_stage"] == FAST_OPTIONS["finest_stage"]
 
 
 def test_a_time_limit_stops_early_with_a_checkpoint(tiny_dataset, tmp_path):

@@ -8,7 +8,7 @@ The defaults are the configuration that met the reconstruction targets (the 100 
 docs/reconstruction.md): 20,000 iterations of 2,048 pixels, the learning rate from 0.05 down to 0.002, a
 grid whose resolution follows the specimen's shape (:func:`~mi_nest.reconstruct.fields.default_resolution`)
 and the :data:`REGULARISED` regulariser, its weights relative to the field's own scale. :data:`FAST_OPTIONS`
-come within 0.3 points of them in 40% of the time (docs/performance.md).
+meet the same targets, by less, in a third of the time (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -178,13 +178,13 @@ REGULARISED = Regulariser(smoothness=1.3e-4, smoothness_edge=5.0, average_last=0
 # The plain fit: the default of hash grids and MLPs, which the smoothness does not act on.
 NO_REGULARISER = Regulariser()
 
-# The defaults' schedule made 2.5 times faster (``mi-nest reconstruct --fast``): one ray per pixel in the coarse
-# stages, which only choose the branch; the finest stage 40% of the run; half the pixels a batch, for more Adam
-# steps (batch noise did not limit); a higher final learning rate with the last quarter's iterates averaged. Side
-# by side with the defaults (docs/performance.md): disk 5.04% in 340 s, kitten 10.10% in 277 s, where the
-# defaults gave 4.75% and 9.81% in 2.5 times the time: near the targets, not within them.
-FAST_OPTIONS = {"iterations": 16_000, "finest_stage": 0.4, "batch_size": 1024, "coarse_pixel_samples": 1,
-                "final_learning_rate": 1e-2, "average_last": 0.25}
+# The defaults' schedule made about 3 times faster (``mi-nest reconstruct --fast``): one ray per pixel in the coarse
+# stages, which only choose the branch, and fewer of them (the finest stage 70% of the run, the path curriculum
+# over the coarse 30%); half the pixels a batch, for more Adam steps (batch noise did not limit); a higher final
+# learning rate with the last 45% of the iterates averaged. Side by side with the defaults (docs/performance.md,
+# "Fewer coarse iterations"): the disk and the kitten targets met in a third of the defaults' time.
+FAST_OPTIONS = {"iterations": 10_800, "finest_stage": 0.7, "path_curriculum": 0.3, "batch_size": 1024,
+                "coarse_pixel_samples": 1, "final_learning_rate": 1e-2, "average_last": 0.45}
 
 
 @dataclass(frozen=True)
