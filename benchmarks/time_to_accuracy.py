@@ -101,7 +101,7 @@ def main():
     data_root = args.data or args.output / "data"
     print(f"{cpu_name()}; `mi-nest reconstruct DATA -o OUT` (each version's defaults; this checkout's with "
           f"'{args.flags}'), 32 x 32 rotations at 64 x 64", flush=True)
-    rows, histories = [], {}
+    rows, histories, finals = [], {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         versions = {"this checkout": installed_layout(HERE, tmp / "current")}
@@ -120,6 +120,7 @@ def main():
                 seconds[version] = record["seconds"]
                 histories[(name, version)] = [(h["seconds"], h["deviatoric_error"]) for h in record["history"]
                                               if "deviatoric_error" in h]
+                finals[(name, version)] = (record["seconds"], error)
                 row = {"scene": name, "version": version, "iterations": len(record["history"]),
                        "optimise_s": round(record["seconds"], 1), "deviatoric_error": round(error, 4),
                        "target": target, "met": error < target,
@@ -136,21 +137,25 @@ def main():
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    plot(histories, args.output / "time_to_accuracy.png")
+    plot(histories, finals, args.flags, args.output / "time_to_accuracy.png")
 
 
-def plot(histories, path):
+def plot(histories, finals, flags, path):
+    """The tracked error of each run's iterates against its clock, and its final result (with iterate
+    averaging, below the last iterate) as a dot at its end."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     figure, axes = plt.subplots(figsize=(7, 4.5))
-    for (name, version), points in histories.items():
+    for key, points in histories.items():
         if points:
-            axes.plot(*zip(*points), label=f"{name}, {version}", linestyle="--" if version == "baseline" else "-")
+            line, = axes.plot(*zip(*points), label=", ".join(key), linestyle="--" if key[1] == "baseline" else "-")
+            axes.plot(*finals[key], "o", color=line.get_color())
     for _, _, target in SCENES.values():
         axes.axhline(target, color="grey", linewidth=0.5)
     axes.set(xlabel="optimisation time (s)", ylabel="relative deviatoric error", yscale="log",
-             title="time to the targets: each version's defaults")
+             title=f"time to the targets: the baseline's defaults, this checkout's {flags or 'defaults'} "
+                   "(dots: final results)")
     axes.legend()
     figure.savefig(path, dpi=120, bbox_inches="tight")
     print(f"wrote {path}")
