@@ -113,8 +113,8 @@ def test_grid_medium_renders_like_the_model_and_is_differentiable(tmp_path):
 def test_projected_grid_equals_the_projected_texture_lookup_inside_and_outside():
     from mi_nest.fields.grid import ProjectedGrid
     from mi_nest.physics import projection
-    grid, _ = sampled_grid(DiskCompressionField(diameter=8.0, thickness=4.0, load=50.0, contact_width=2.0), shape=(7, 9, 6),
-                           bbox_min=(-3, -2, -1), bbox_max=(3, 2, 4))
+    disk = DiskCompressionField(diameter=8.0, thickness=4.0, load=50.0, contact_width=2.0)
+    grid, _ = sampled_grid(disk, shape=(7, 9, 6), bbox_min=(-3, -2, -1), bbox_max=(3, 2, 4))
     field = GridField(grid)
     direction = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     u, v = projection.transverse_basis(tuple(-direction), (1.0, 0.2, 0.0))
@@ -137,8 +137,8 @@ def test_grid_renders_the_same_through_the_projected_lookup(tmp_path, monkeypatc
     projection."""
     from scenes import scene
     from mi_nest.integration.setup import SceneSetup
-    grid, _ = sampled_grid(DiskCompressionField(diameter=24.0, thickness=6.0, load=150.0, contact_width=4.0), shape=(12, 17, 15),
-                           bbox_min=(-10, -10, -3), bbox_max=(10, 10, 3))
+    disk = DiskCompressionField(diameter=24.0, thickness=6.0, load=150.0, contact_width=4.0)
+    grid, _ = sampled_grid(disk, shape=(12, 17, 15), bbox_min=(-10, -10, -3), bbox_max=(10, 10, 3))
     save_stress_grid(tmp_path / "disk.npz", grid)
     shapes = [box((20, 20, 6), interior={"type": "stress", "stress_optic_coefficient": 50.0,
                                          "filename": str(tmp_path / "disk.npz")})]
