@@ -70,14 +70,14 @@ def main():
     def texture(channels):
         return mi.Texture3f(mi.TensorXf(np.ascontiguousarray(values[..., :channels])), **options)
     half = dr.llvm.ad.Texture3f16(dr.llvm.ad.TensorXf16(values.astype(np.float16)), **options)
+    pairs, two = x_pair_grid(values), texture(2)
     cases = {"no lookup (closed form, 6 outputs)": (lambda p: [p.x * p.z + c for c in range(6)], 6),
              "Texture3f, 6 channels (GridField)": (texture(6).eval, 6),
              "Texture3f, 4 channels": (texture(4).eval, 4),
              "Texture3f, 2 channels": (texture(2).eval, 2),
              "Texture3f16 (half), 6 channels": (half.eval, 6),
-             "x-pair grid, 2 channels (ProjectedGrid)": (x_pair_grid(values).eval, 2)}
+             "x-pair grid, 2 channels (ProjectedGrid)": (pairs.eval, 2)}
     # The hand-written lookup must agree with the texture's (whose [0, 1] spans texel edges, not nodes).
-    pairs, two = x_pair_grid(values), texture(2)
     points = mi.Point3f(np.random.default_rng(1).random((3, 1000)).astype(np.float32))
     nodes = mi.Vector3f(args.nodes)
     disagreement = max(float(dr.max(dr.abs(a - b))[0]) for a, b in

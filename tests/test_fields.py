@@ -1,6 +1,7 @@
 """Stress sources: closed-form equilibrium and boundary tractions, grid lookup, traverse()."""
 import math
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -127,6 +128,10 @@ def test_projected_grid_equals_the_projected_texture_lookup_inside_and_outside()
     expected = projection.apply_coefficients((alpha, beta), field.eval(p))
     for got, want in zip(projected.eval(p), expected):
         np.testing.assert_allclose(np.array(got), np.array(want), atol=2e-5 * np.abs(grid.stress).max())
+    # A grid being differentiated keeps the texture's lookup, the one its gradients flow through.
+    assert isinstance(field.projected(alpha, beta), ProjectedGrid)
+    dr.enable_grad(field.texture.tensor())
+    assert field.projected(alpha, beta) is None
 
 
 @pytest.mark.filterwarnings("ignore:photoelastic. fringes denser")
@@ -145,11 +150,11 @@ def test_grid_renders_the_same_through_the_projected_lookup(tmp_path, monkeypatc
     options = dict(res=32, view=9.0, step=0.2, projection=projection, origin=(40.0, -30.0, 60.0),
                    up=(0.3, 1.0, 0.0), input_qwp=45.0, output_qwp=-45.0)
     used = []
-    own = SceneSetup._projected_grid
-    monkeypatch.setattr(SceneSetup, "_projected_grid", lambda *a: used.append(own(*a)) or used[-1])
+    own = SceneSetup._projected_field
+    monkeypatch.setattr(SceneSetup, "_projected_field", lambda *a: used.append(own(*a)) or used[-1])
     projected = mi_nest.render(scene(shapes, **options)).channels
     assert used and all((p is not None) == (projection == "orthographic") for p in used)
-    monkeypatch.setattr(SceneSetup, "_projected_grid", lambda *a: None)
+    monkeypatch.setattr(SceneSetup, "_projected_field", lambda *a: None)
     general = mi_nest.render(scene(shapes, **options)).channels
     assert np.ptp(general["char.delta"]) > 1.0      # several fringes: the frames matter
     for name in general:

@@ -24,6 +24,12 @@ class StressField:
     def eval(self, p: Vector) -> Tensor:
         raise NotImplementedError
 
+    def projected(self, alpha: Tensor, beta: Tensor):
+        """The field as one fixed transverse frame sees it (``(alpha . s, beta . s)`` by an ``eval(p)`` cheaper
+        than projecting ``eval``'s six components), for a render whose rays all share that frame; None where
+        the field has no such lookup."""
+        return None
+
     def traverse(self, callback: mi.TraversalCallback) -> None:
         pass
 

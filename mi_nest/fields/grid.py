@@ -31,6 +31,13 @@ class GridField(StressField):
         uvw = dr.fma(mi.Point3f(p), self._scale, self._offset)
         return tuple(self.texture.eval(uvw))
 
+    def projected(self, alpha: tuple, beta: tuple) -> ProjectedGrid | None:
+        """The grid projected onto one transverse frame (:class:`ProjectedGrid`); None while its tensor is being
+        differentiated, whose gradients reach it through the texture's lookup only."""
+        if dr.grad_enabled(self.texture.tensor()):
+            return None
+        return ProjectedGrid(self, alpha, beta)
+
     def traverse(self, callback: mi.TraversalCallback) -> None:
         callback.put("stress", self.texture.tensor(), mi.ParamFlags.Differentiable)
 

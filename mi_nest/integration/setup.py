@@ -15,7 +15,6 @@ import numpy as np
 
 from mi_nest import occupancy
 from mi_nest.fields import StressField
-from mi_nest.fields.grid import GridField, ProjectedGrid
 from mi_nest.physics import Polariscope, projection
 from mi_nest.plugins import polariscope, polariscope_light, stress
 
@@ -106,7 +105,7 @@ class SceneSetup:
         if right is None:
             right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
         self.right = dr.normalize(mi.Vector3f(right))
-        self.projected = self._projected_grid(sensor, own_right)
+        self.projected = self._projected_field(sensor, own_right)
         # One camera's rays are coherent: Embree traced them 3.7x faster flagged so (512², the disk). A batch
         # drawn across views is not: flagged coherent, the kitten's training batches traced 4 to 6% slower.
         self.coherent_rays = sensor is not None
@@ -159,17 +158,14 @@ class SceneSetup:
             return self.projected.eval(p)
         return projection.apply_coefficients(segment.coefficients, self.phase_tensor(segment.medium, p))
 
-    def _projected_grid(self, sensor: mi.Sensor | None, own_right: bool) -> ProjectedGrid | None:
-        """The one grid field as the camera sees it, where every ray shares the camera's transverse frame: an
-        orthographic camera's own rays, straight (no refracting surface), through one medium whose grid is not
-        being differentiated (gradients reach the texture's tensor through the general lookup only)."""
-        field = self.fields[0]
-        if (sensor is None or not own_right or not _orthographic(sensor) or len(self.fields) != 1
-                or self.refracting or not isinstance(field, GridField)
-                or dr.grad_enabled(field.texture.tensor())):
+    def _projected_field(self, sensor: mi.Sensor | None, own_right: bool):
+        """The one field as the camera sees it (:meth:`StressField.projected`), where every ray shares the
+        camera's transverse frame: an orthographic camera's own rays, straight (no refracting surface), through
+        one medium. None elsewhere, or where the field has no projected lookup."""
+        if sensor is None or not own_right or not _orthographic(sensor) or len(self.fields) != 1 or self.refracting:
             return None
         direction = sensor.world_transform() @ mi.Vector3f(0, 0, 1)
-        return ProjectedGrid(field, *self.projection_coefficients(dr.normalize(direction)))
+        return self.fields[0].projected(*self.projection_coefficients(dr.normalize(direction)))
 
 
 def _orthographic(sensor: mi.Sensor) -> bool:
