@@ -278,9 +278,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                                   "reverse mode (dr.backward on the rendered image)")
 
     @contextlib.contextmanager
-    def _prepared(self, scene, sensor, right=None, field=None):
-        """The scene set-up and the method for one render or ray batch (``auto`` decides here)."""
-        setup = SceneSetup(scene, sensor, right, field, self._view.phase_scale)
+    def _prepared(self, scene, sensor, right=None, field=None, marching=True):
+        """The scene set-up and the method for one render or ray batch (``auto`` decides here); ``marching=False``
+        for one that only decides."""
+        setup = SceneSetup(scene, sensor, right, field, self._view.phase_scale, marching)
         if self._view.polariscope is not None:
             setup.polariscope = OpaquePolariscope(self._view.polariscope)
         decision = self._decided or self._method().decide(setup, scene, sensor, self.step_size)
@@ -306,7 +307,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         if self._decided is not None:
             yield
             return
-        with self._prepared(scene, sensor, field=field) as prepared:
+        with self._prepared(scene, sensor, field=field, marching=False) as prepared:
             self._decided = prepared.decision
         try:
             yield
@@ -609,10 +610,6 @@ class RaySegment:
     def __init__(self, steps=None, h=None, medium=None, origin=None, d=None, coefficients=None, seed=None):
         self.steps, self.h, self.medium, self.origin, self.d = steps, h, medium, origin, d
         self.coefficients, self.seed = coefficients, seed
-
-    def point(self, index: mi.UInt32, offset: float | mi.Float) -> mi.Point3f:
-        """The point a fraction ``offset`` into step ``index``."""
-        return dr.fma(self.d, (mi.Float(index) + offset) * self.h, self.origin)
 
 
 def _ray_seeds(seed, count):

@@ -55,9 +55,10 @@ class ProjectedGrid:
 
     Trilinear interpolation and the projection are both linear, so projecting the nodes first gives the same
     values as projecting each interpolated tensor, for a third of the lookups and none of the per-step
-    projections. Each node is stored beside its +x neighbour: a lookup gathers four packets of 4 floats, where
-    the texture gathers eight of 8 (docs/performance.md, "The grid field's lookups"). Built with Dr.Jit from
-    the texture's tensor, once per render.
+    projections. Each node stores its cell's four corners in its own z plane (itself and its +x, +y and +xy
+    neighbours, two channels each): a lookup gathers two packets of 8 floats, where the texture gathers eight
+    of 8 (docs/performance.md, "The grid field's lookups"). Built with Dr.Jit from the texture's tensor, once
+    per render, at 8 floats per node.
     """
 
     def __init__(self, field: GridField, alpha: tuple, beta: tuple):
@@ -65,29 +66,49 @@ class ProjectedGrid:
         self.nodes = (nx, ny, nz)
         self._scale = mi.ScalarVector3f(nx - 1, ny - 1, nz - 1) / (field.bbox_max - field.bbox_min)
         self._offset = -field.bbox_min * self._scale
-        slot = dr.arange(mi.UInt32, nz * ny * nx * 4)
-        node = slot // 4
-        # Slots 2 and 3 hold the +x neighbour's channels (the last node repeats itself: its cell is never used).
-        source = dr.select(((slot & 2) != 0) & (node % nx + 1 < nx), node + 1, node)
-        stress = [dr.gather(mi.Float, field.texture.tensor().array, source * 6 + c) for c in range(6)]
+        node = dr.arange(mi.UInt32, nz * ny * nx)
+        stress = [dr.gather(mi.Float, field.texture.tensor().array, node * 6 + c) for c in range(6)]
         projected = [sum(mi.Float(a) * s for a, s in zip(coefficients, stress)) for coefficients in (alpha, beta)]
-        self.values = dr.select((slot & 1) == 0, *projected)
+        dr.eval(projected)
+        x, y = node % nx, node // nx % ny
+        corners = []
+        # The last node of a row or column repeats itself: its cell is never looked up.
+        for dy in (0, nx):
+            for dx in (0, 1):
+                neighbour = node + dr.select(x + 1 < nx, dx, 0) + dr.select(y + 1 < ny, dy, 0)
+                corners += [dr.gather(mi.Float, channel, neighbour) for channel in projected]
+        self.values = dr.empty(mi.Float, nz * ny * nx * len(corners))
+        dr.scatter(self.values, mi.ArrayXf(corners), node)
 
     def eval(self, p: mi.Point3f) -> tuple[mi.Float, mi.Float]:
         """``(alpha . s, beta . s)`` at ``p``; outside the grid its boundary values (the texture's clamp)."""
+        return self._lookup(dr.fma(mi.Point3f(p), self._scale, self._offset))
+
+    def eval_ray(self, origin: mi.Point3f, direction: mi.Vector3f, along: mi.Float) -> tuple[mi.Float, mi.Float]:
+        """:meth:`eval` at ``origin + along * direction``. Inside a march the ray's origin and direction in grid
+        units do not change, so LLVM computes them once per ray instead of once per step."""
+        return self._lookup(dr.fma(direction * self._scale, along, dr.fma(origin, self._scale, self._offset)))
+
+    def _lookup(self, position: mi.Point3f) -> tuple[mi.Float, mi.Float]:
         nx, ny, nz = self.nodes
-        position = dr.fma(mi.Point3f(p), self._scale, self._offset)
         cells, fractions = [], []
         for coordinate, count in zip(position, self.nodes):
-            t = dr.clip(coordinate, 0.0, count - 1.0)
-            cell = dr.minimum(mi.UInt32(t), count - 2)
+            # Selects rather than dr.clip: x86 has no single instruction for the NaN-propagating minimum and
+            # maximum that dr.clip asks LLVM for. Clamped to >= 0, a conversion to Int32 is the floor.
+            t = dr.select(coordinate > 0.0, coordinate, 0.0)
+            t = dr.select(t < count - 1.0, t, count - 1.0)
+            cell = dr.minimum(mi.Int32(t), count - 2)
             cells.append(cell)
             fractions.append(t - mi.Float(cell))
         fx, fy, fz = fractions
-        base = (cells[2] * ny + cells[1]) * nx + cells[0]
-        rows = [dr.gather(mi.Vector4f, self.values, base + offset) for offset in (0, nx, nx * ny, nx * ny + nx)]
-        along_x = [dr.fma(fx, mi.Vector2f(r.z, r.w) - mi.Vector2f(r.x, r.y), mi.Vector2f(r.x, r.y)) for r in rows]
-        near = dr.fma(fy, along_x[1] - along_x[0], along_x[0])
-        far = dr.fma(fy, along_x[3] - along_x[2], along_x[2])
-        value = dr.fma(fz, far - near, near)
-        return value.x, value.y
+        base = mi.UInt32((cells[2] * ny + cells[1]) * nx + cells[0])
+        planes = []
+        for offset in (0, nx * ny):
+            v = dr.gather(mi.ArrayXf, self.values, base + offset, shape=(8, dr.width(base)))
+            planes.append([_lerp(fy, _lerp(fx, v[c], v[c + 2]), _lerp(fx, v[c + 4], v[c + 6])) for c in (0, 1)])
+        near, far = planes
+        return _lerp(fz, near[0], far[0]), _lerp(fz, near[1], far[1])
+
+
+def _lerp(t: mi.Float, a: mi.Float, b: mi.Float) -> mi.Float:
+    return dr.fma(t, b - a, a)

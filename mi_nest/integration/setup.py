@@ -32,10 +32,12 @@ class SceneSetup:
     own (a reconstruction's trainable field); the media keep their material.
     ``right`` is each ray's image-right direction; by default the camera's.
     ``phase_scale`` multiplies every phase (a view's load scale or wavelength).
+    ``marching=False`` is a set-up that only decides the method, which skips
+    building :attr:`projected`.
     """
 
     def __init__(self, scene: mi.Scene, sensor: mi.Sensor | None, right: mi.Vector3f | None = None,
-                 field: StressField | None = None, phase_scale: float = 1.0):
+                 field: StressField | None = None, phase_scale: float = 1.0, marching: bool = True):
         self.phase_scale = phase_scale
         self.media = []
         self.specimens = []     # (shape, index of its medium), in scene order
@@ -105,7 +107,7 @@ class SceneSetup:
         if right is None:
             right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
         self.right = dr.normalize(mi.Vector3f(right))
-        self.projected = self._projected_field(sensor, own_right)
+        self.projected = self._projected_field(sensor, own_right) if marching else None
         # One camera's rays are coherent: Embree traced them 3.7x faster flagged so (512², the disk). A batch
         # drawn across views is not: flagged coherent, the kitten's training batches traced 4 to 6% slower.
         self.coherent_rays = sensor is not None
@@ -152,10 +154,11 @@ class SceneSetup:
             return self.fields[0].eval(p)
         return dr.switch(medium - 1, self.phase_tensors, p)
 
-    def transverse(self, p: mi.Point3f, segment: Segment) -> tuple[mi.Float, mi.Float]:
-        """``(s_uu - s_vv, 2 s_uv)`` at ``p`` on a walk's ``segment``, scaled to phase per mm."""
+    def transverse(self, segment: Segment, along: mi.Float) -> tuple[mi.Float, mi.Float]:
+        """``(s_uu - s_vv, 2 s_uv)`` a distance ``along`` into a walk's ``segment``, scaled to phase per mm."""
         if self.projected is not None:
-            return self.projected.eval(p)
+            return self.projected.eval_ray(segment.origin, segment.d, along)
+        p = dr.fma(segment.d, along, segment.origin)
         return projection.apply_coefficients(segment.coefficients, self.phase_tensor(segment.medium, p))
 
     def _projected_field(self, sensor: mi.Sensor | None, own_right: bool):

@@ -27,6 +27,10 @@ class _NumPyOps:
     select = staticmethod(np.where)
 
     @staticmethod
+    def fma(a: Array, b: Array, c: Array) -> Array:
+        return a * b + c
+
+    @staticmethod
     def sincos(x: Array) -> tuple[Array, Array]:
         return np.sin(x), np.cos(x)
 
@@ -59,6 +63,7 @@ class _DrJitOps:
         self.select = dr.select
         self.sincos = dr.sincos
         self.rsqrt = dr.rsqrt
+        self.fma = dr.fma
 
         def replace_where(cond: drjit.ArrayBase, compute: Callable[..., Sequence[Array]],
                           current: Sequence[Array], args: Sequence[Array]) -> tuple[Array, ...]:

@@ -143,11 +143,19 @@ def cos_sinc(x2: Array) -> tuple[Array, Array]:
     ``sincos``, which Dr.Jit only runs for the vector packets that need it.
     """
     xp = ops(x2)
-    cos_x = 1.0 + x2 * (-1 / 2 + x2 * (1 / 24 + x2 * (-1 / 720 + x2 * (1 / 40320 + x2 * (-1 / 3628800)))))
-    sinc_x = 1.0 + x2 * (-1 / 6 + x2 * (1 / 120 + x2 * (-1 / 5040 + x2 * (1 / 362880
-                                                                             + x2 * (-1 / 39916800)))))
+    cos_x = _horner(xp, x2, (1.0, -1 / 2, 1 / 24, -1 / 720, 1 / 40320, -1 / 3628800))
+    sinc_x = _horner(xp, x2, (1.0, -1 / 6, 1 / 120, -1 / 5040, 1 / 362880, -1 / 39916800))
     return xp.replace_where(x2 > _SERIES_LIMIT, lambda x2: _cos_sinc_trigonometric(x2, xp),
                             (cos_x, sinc_x), (x2,))
+
+
+def _horner(xp, x: Array, coefficients: tuple[float, ...]) -> Array:
+    """``sum(c_k x^k)``, one fused multiply-add per term: half the instructions and half the dependent latency
+    of a multiply and an add."""
+    value = coefficients[-1]
+    for c in reversed(coefficients[:-1]):
+        value = xp.fma(x, value, c)
+    return value
 
 
 def _cos_sinc_trigonometric(x2, xp):
