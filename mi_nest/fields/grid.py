@@ -55,10 +55,11 @@ class ProjectedGrid:
 
     Trilinear interpolation and the projection are both linear, so projecting the nodes first gives the same
     values as projecting each interpolated tensor, for a third of the lookups and none of the per-step
-    projections. Each node stores its cell's four corners in its own z plane (itself and its +x, +y and +xy
-    neighbours, two channels each): a lookup gathers two packets of 8 floats, where the texture gathers eight
-    of 8 (docs/performance.md, "The grid field's lookups"). Built with Dr.Jit from the texture's tensor, once
-    per render, at 8 floats per node.
+    projections. Each node stores, per channel, the bilinear form of its cell's face in its own z plane (from
+    itself and its +x, +y and +xy neighbours: ``v00 + fx dx + fy (dy + fx dxy)``): a lookup gathers two packets
+    of 8 floats, where the texture gathers eight of 8 (docs/performance.md, "The grid field's lookups"), and
+    interpolates with 3 fused multiply-adds per face and channel. Built with Dr.Jit from the texture's
+    tensor, once per render, at 8 floats per node.
     """
 
     def __init__(self, field: GridField, alpha: tuple, beta: tuple):
@@ -71,14 +72,14 @@ class ProjectedGrid:
         projected = [sum(mi.Float(a) * s for a, s in zip(coefficients, stress)) for coefficients in (alpha, beta)]
         dr.eval(projected)
         x, y = node % nx, node // nx % ny
-        corners = []
         # The last node of a row or column repeats itself: its cell is never looked up.
-        for dy in (0, nx):
-            for dx in (0, 1):
-                neighbour = node + dr.select(x + 1 < nx, dx, 0) + dr.select(y + 1 < ny, dy, 0)
-                corners += [dr.gather(mi.Float, channel, neighbour) for channel in projected]
-        self.values = dr.empty(mi.Float, nz * ny * nx * len(corners))
-        dr.scatter(self.values, mi.ArrayXf(corners), node)
+        right, up = dr.select(x + 1 < nx, 1, 0), dr.select(y + 1 < ny, nx, 0)
+        faces = []
+        for channel in projected:
+            v00, v10, v01, v11 = (dr.gather(mi.Float, channel, node + n) for n in (0, right, up, right + up))
+            faces += [v00, v10 - v00, v01 - v00, (v11 - v10) - (v01 - v00)]
+        self.values = dr.empty(mi.Float, nz * ny * nx * len(faces))
+        dr.scatter(self.values, mi.ArrayXf(faces), node)
 
     def eval(self, p: mi.Point3f) -> tuple[mi.Float, mi.Float]:
         """``(alpha . s, beta . s)`` at ``p``; outside the grid its boundary values (the texture's clamp)."""
@@ -102,13 +103,9 @@ class ProjectedGrid:
             fractions.append(t - mi.Float(cell))
         fx, fy, fz = fractions
         base = mi.UInt32((cells[2] * ny + cells[1]) * nx + cells[0])
-        planes = []
+        faces = []
         for offset in (0, nx * ny):
             v = dr.gather(mi.ArrayXf, self.values, base + offset, shape=(8, dr.width(base)))
-            planes.append([_lerp(fy, _lerp(fx, v[c], v[c + 2]), _lerp(fx, v[c + 4], v[c + 6])) for c in (0, 1)])
-        near, far = planes
-        return _lerp(fz, near[0], far[0]), _lerp(fz, near[1], far[1])
-
-
-def _lerp(t: mi.Float, a: mi.Float, b: mi.Float) -> mi.Float:
-    return dr.fma(t, b - a, a)
+            faces.append([dr.fma(fy, dr.fma(fx, v[c + 3], v[c + 2]), dr.fma(fx, v[c + 1], v[c])) for c in (0, 4)])
+        near, far = faces
+        return tuple(dr.fma(fz, b - a, a) for a, b in zip(near, far))
