@@ -3,7 +3,8 @@
 alternating round by round, so that the machine's drift falls on both alike.
 
 Prints, per version and round, the ``mi_nest.render`` ray-steps/s that ``forward.py`` reports (its best of
-``--repeats``), then the best of the rounds per version and their ratio. Extra arguments go to
+``--repeats``), then the best of the rounds per version and their ratio, and each round's own ratio with
+their median. Extra arguments go to
 ``forward.py`` (both versions must accept them).
 
     git worktree add /tmp/before 04d869c
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -56,14 +58,17 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         trees = {"this checkout": HERE, "baseline": args.baseline.resolve()}
         layouts = {name: installed_layout(tree, Path(tmp) / name.replace(" ", "_")) for name, tree in trees.items()}
-        best = {name: 0.0 for name in trees}
+        values = {name: [] for name in trees}
         for round_index in range(args.rounds):
             for name, tree in trees.items():
-                value = throughput(tree, layouts[name], args.forward_arguments)
-                best[name] = max(best[name], value)
-                print(f"  round {round_index + 1}: {name:14s} {value:.3e} ray-steps/s", flush=True)
+                values[name].append(throughput(tree, layouts[name], args.forward_arguments))
+                print(f"  round {round_index + 1}: {name:14s} {values[name][-1]:.3e} ray-steps/s", flush=True)
+    best = {name: max(v) for name, v in values.items()}
+    # The machine's speed can change by a third between rounds: a round's own ratio is the steadier figure.
+    ratios = [mine / theirs for mine, theirs in zip(values["this checkout"], values["baseline"])]
     print(f"best: this checkout {best['this checkout']:.3e}, baseline {best['baseline']:.3e} ray-steps/s; "
           f"this checkout / baseline {best['this checkout'] / best['baseline']:.2f}x")
+    print(f"per round: {', '.join(f'{r:.2f}x' for r in ratios)}; median {statistics.median(ratios):.2f}x")
 
 
 if __name__ == "__main__":

@@ -6,9 +6,9 @@ and sums the channels so that nothing is optimised away. Compares the loop
 without a lookup (a closed-form stand-in with as many outputs), ``mi.Texture3f``
 with 6 channels (what ``GridField`` stores; Dr.Jit pads them to 8), 4 and 2
 channels, a half-precision ``Texture3f16`` with 6, and the hand-written trilinear
-lookup of 2 channels with each node's +x neighbour stored beside it that an
-orthographic render of a grid uses (``ProjectedGrid``: every ray of such a view
-shares its transverse frame). The best of ``--repeats`` runs, interleaved.
+lookup of 2 channels with each node's in-plane face stored in its bilinear form
+(two 8-float packets per lookup) that an orthographic render of a grid uses
+(``ProjectedGrid``: every ray of such a view shares its transverse frame). The best of ``--repeats`` runs, interleaved.
 
     python benchmarks/grid_lookup.py
 """
@@ -49,9 +49,9 @@ def lookup_loop(lookup, channels, rays, steps):
     return run
 
 
-def x_pair_grid(values: np.ndarray) -> ProjectedGrid:
-    """The first two of ``values``'s channels as :class:`ProjectedGrid` stores and looks them up (each node
-    beside its +x neighbour: four gathers of one 4-float packet), over the unit cube."""
+def face_grid(values: np.ndarray) -> ProjectedGrid:
+    """The first two of ``values``'s channels as :class:`ProjectedGrid` stores and looks them up (each node's
+    face in its z plane in bilinear form: two gathers of one 8-float packet), over the unit cube."""
     unit = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     return ProjectedGrid(GridField(StressGrid(values, np.zeros(3), np.ones(3))), unit, unit[-1:] + unit[:-1])
 
@@ -70,18 +70,18 @@ def main():
     def texture(channels):
         return mi.Texture3f(mi.TensorXf(np.ascontiguousarray(values[..., :channels])), **options)
     half = dr.llvm.ad.Texture3f16(dr.llvm.ad.TensorXf16(values.astype(np.float16)), **options)
-    pairs, two = x_pair_grid(values), texture(2)
+    faces, two = face_grid(values), texture(2)
     cases = {"no lookup (closed form, 6 outputs)": (lambda p: [p.x * p.z + c for c in range(6)], 6),
              "Texture3f, 6 channels (GridField)": (texture(6).eval, 6),
              "Texture3f, 4 channels": (texture(4).eval, 4),
              "Texture3f, 2 channels": (texture(2).eval, 2),
              "Texture3f16 (half), 6 channels": (half.eval, 6),
-             "x-pair grid, 2 channels (ProjectedGrid)": (pairs.eval, 2)}
+             "face grid, 2 channels (ProjectedGrid)": (faces.eval, 2)}
     # The hand-written lookup must agree with the texture's (whose [0, 1] spans texel edges, not nodes).
     points = mi.Point3f(np.random.default_rng(1).random((3, 1000)).astype(np.float32))
     nodes = mi.Vector3f(args.nodes)
     disagreement = max(float(dr.max(dr.abs(a - b))[0]) for a, b in
-                       zip(pairs.eval(points), two.eval(points * (nodes - 1) / nodes + 0.5 / nodes)))
+                       zip(faces.eval(points), two.eval(points * (nodes - 1) / nodes + 0.5 / nodes)))
     assert disagreement < 1e-4, disagreement
     runs = {name: lookup_loop(lookup, channels, rays, args.steps) for name, (lookup, channels) in cases.items()}
     for run in runs.values():
@@ -92,7 +92,7 @@ def main():
             seconds[name].append(run())
     best = {name: min(times) for name, times in seconds.items()}
     print(f"{cpu_name()}; {args.res}^2 rays x {args.steps} lookups in a {args.nodes}^3 grid, best of {args.repeats}; "
-          f"the x-pair lookup agrees with the texture's within {disagreement:.1e}")
+          f"the face grid's lookup agrees with the texture's within {disagreement:.1e}")
     for name, seconds in best.items():
         print(f"  {name:40s} {1000 * seconds:7.1f} ms  {rays * args.steps / seconds:.3e} lookups/s")
 
