@@ -166,7 +166,8 @@ class ChainMethod(Method):
         second, second_fringe = self.step(SegmentStep(segment, setup, index + 1))
         return su2.multiply(first, second), _add(first_fringe, second_fringe)
 
-    def march_chords(self, generator: auto.GeneratorField, starts: np.ndarray, direction: np.ndarray, lengths: np.ndarray, step_size: float) -> su2.Quaternion:
+    def march_chords(self, generator: auto.GeneratorField, starts: np.ndarray, direction: np.ndarray,
+                     lengths: np.ndarray, step_size: float) -> su2.Quaternion:
         """Jones quaternions of NumPy chords ``starts + t direction``, ``t`` in ``[0, lengths]``.
 
         Marched as a walk marches a segment: ``ceil(L / step_size)`` equal steps
