@@ -15,16 +15,12 @@ in a product of hundreds of steps reaches a few 1e-5 when the operations are ord
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from reconstruction import cpu_name, installed_layout
+from reconstruction import cpu_name, installed_layout, run
 
 HERE = Path(__file__).resolve().parents[1]
 SHIPPED = {"disk_compression": 64, "kitten": 64, "twisted_block": 64, "beam_bending": 64, "bracket": 48}
@@ -34,7 +30,8 @@ import json, sys, warnings
 import mitsuba as mi
 import numpy as np
 import mi_nest
-output, grid, shipped = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+args = json.loads(sys.argv[1])
+output, grid, shipped = args["output"], args["grid"], args["shipped"]
 warnings.simplefilter("ignore")
 channels = {}
 for name, res in shipped.items():
@@ -71,13 +68,7 @@ def write_disk_grid(path: Path) -> None:
 
 
 def render(path_entry: Path, output: Path, grid: Path) -> dict[str, np.ndarray]:
-    env = {**os.environ, "PYTHONPATH": str(path_entry)}
-    done = subprocess.run([sys.executable, "-c", WORKER, str(output), str(grid), json.dumps(SHIPPED)], env=env,
-                          cwd=path_entry, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise SystemExit(f"the renders from {path_entry} failed:\n{done.stderr[-3000:]}")
-    if not json.loads(done.stdout.strip().splitlines()[-1])["mi_nest"].startswith(str(path_entry)):
-        raise SystemExit(f"the renders did not import the copy in {path_entry}")
+    run(path_entry, {"output": str(output), "grid": str(grid), "shipped": SHIPPED}, WORKER)
     with np.load(output) as data:
         return dict(data)
 
