@@ -89,7 +89,7 @@ def reconstruct(scene, data, output, label, minutes, res, defines=None, **option
     row = {"label": label, "iterations": len(result.history), "optimise_s": round(result.seconds, 1),
            "total_s": round(time.perf_counter() - start, 1),
            "deviatoric_error": round(metrics.get("deviatoric_error", float("nan")), 4),
-           "representation_floor": round(metrics.get("representation_floor", float("nan")), 4),
+           "grid_floor": round(metrics.get("grid_floor", float("nan")), 4),
            "principal_difference_error": round(metrics.get("principal_difference_error", float("nan")), 4),
            "test_psnr": round(metrics.get("test_psnr", float("nan")), 2)}
     print(row, flush=True)

@@ -107,7 +107,7 @@ def defaults(args):
                "total_s": round(time.perf_counter() - start, 1),
                # The children's peak so far: the largest of the runs up to this one.
                "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024),
-               **{key: round(metrics[key], 4) for key in ("deviatoric_error", "representation_floor",
+               **{key: round(metrics[key], 4) for key in ("deviatoric_error", "grid_floor",
                                                           "principal_difference_error")},
                "test_psnr": round(metrics["test_psnr"], 2)}
         print(row, flush=True)

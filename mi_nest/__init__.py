@@ -4,6 +4,16 @@ Importing the package selects ``llvm_ad_mono`` when no Mitsuba variant is set,
 registers the plugins (``stress`` medium, ``photoelastic`` integrator,
 ``polariscope_light`` emitter, ``polariscope`` sensor) and registers them
 again after every variant change.
+
+The API, each with its own ``help()``:
+
+- ``load_scene(name_or_file, **defines)`` and ``render(scene)`` -> ``RenderResult`` (named channels, EXR);
+- ``Dataset(directory)``: a multi-axis dataset (``mi-nest simulate`` / ``acquire``; ``simulate`` and
+  ``SimulationSettings`` make one from Python);
+- ``optimize(scene, dataset, **options)`` -> ``Reconstruction``; ``options`` are ``OptimizeConfig``'s,
+  flat (``iterations=300``) or as its groups ``Schedule``, ``Optimiser``, ``ForwardModel``, ``FieldConfig``,
+  ``Regulariser`` (``REGULARISED``, the default, or ``NO_REGULARISER``) and ``Reporting``; ``FAST_OPTIONS``
+  are ``mi-nest reconstruct --fast``'s.
 """
 from __future__ import annotations
 
@@ -46,8 +56,12 @@ mi.detail.add_variant_callback(_on_variant_change)
 
 from .render import RenderResult, render  # noqa: E402
 from .scene import SceneError, load_scene, scene_path  # noqa: E402
-from .dataset import Dataset, DatasetError  # noqa: E402
-from .reconstruct import DivergenceError, Reconstruction, optimize  # noqa: E402
+from .dataset import Dataset, DatasetError, SimulationSettings, simulate  # noqa: E402
+from .reconstruct import (FAST_OPTIONS, NO_REGULARISER, REGULARISED, DivergenceError, FieldConfig,  # noqa: E402
+                          ForwardModel, OptimizeConfig, Optimiser, Reconstruction, Regulariser, Reporting, Schedule,
+                          optimize)
 
 __all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "Dataset", "DatasetError",
-           "optimize", "Reconstruction", "DivergenceError", "DEFAULT_VARIANT", "__version__"]
+           "SimulationSettings", "simulate", "optimize", "OptimizeConfig", "Schedule", "Optimiser", "ForwardModel",
+           "FieldConfig", "Regulariser", "Reporting", "REGULARISED", "NO_REGULARISER", "FAST_OPTIONS",
+           "Reconstruction", "DivergenceError", "DEFAULT_VARIANT", "__version__"]

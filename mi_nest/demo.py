@@ -57,7 +57,7 @@ def run_demo(output_dir: str | Path, iterations: int = DEMO_ITERATIONS) -> Recon
     default_view = load_scene(scene_path(DEFAULT_SCENE), **defines)
     comparison = write_truth_beside_reconstruction(default_view, reconstruction, out)
     print(f"relative deviatoric stress error: {100 * reconstruction.metrics['deviatoric_error']:.1f}% "
-          f"(for scale: sampling the true field at the nodes of this {reconstruction.field.describe()} gives "
-          f"{100 * reconstruction.metrics['representation_floor']:.1f}%)")
+          f"(the floor: the least-squares fit of the true field by this {reconstruction.field.describe()} scores "
+          f"{100 * reconstruction.metrics['grid_floor']:.1f}%)")
     print(f"wrote {(out / 'reconstruction').resolve()} (field.npz, reconstruction.json{written}) and {comparison}")
     return reconstruction

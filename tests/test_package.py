@@ -3,6 +3,8 @@ import os
 import subprocess
 import sys
 
+import numpy as np
+
 import mi_nest
 
 
@@ -48,3 +50,29 @@ def test_the_stress_medium_documents_every_model():
     from mi_nest.plugins.stress import StressMedium
     for name in MODELS:
         assert f"``{name}``" in StressMedium.__doc__, name
+
+
+def test_the_api_explains_itself():
+    import pydoc
+    for name in ("OptimizeConfig", "Schedule", "Optimiser", "ForwardModel", "FieldConfig", "Regulariser",
+                 "Reporting", "SimulationSettings", "simulate", "REGULARISED", "FAST_OPTIONS"):
+        assert name in mi_nest.__all__ and getattr(mi_nest, name) is not None
+    # help(mi_nest.optimize) names OptimizeConfig, which help(mi_nest) lists.
+    assert "OptimizeConfig" in mi_nest.optimize.__doc__
+    assert "class OptimizeConfig" in pydoc.render_doc(mi_nest, renderer=pydoc.plaintext)
+    for cls, methods in ((mi_nest.Dataset, ("view", "split", "measurements", "ray_batch", "to_world",
+                                            "polariscopes", "check_measurements")),
+                         (mi_nest.Reconstruction, ("load", "save", "describe", "render"))):
+        assert cls.__doc__ and len(cls.__doc__) > 200
+        for method in methods:
+            assert getattr(cls, method).__doc__, f"{cls.__name__}.{method} has no docstring"
+
+
+def test_a_reconstruction_s_repr_is_one_short_line():
+    from mi_nest.reconstruct import FieldConfig, OptimizeConfig, make_field
+    field = make_field(FieldConfig(kind="grid", resolution=4), np.zeros(3), np.ones(3), 1.0)
+    history = [{"iteration": i, "loss": 0.1} for i in range(10000)]
+    result = mi_nest.Reconstruction(field, OptimizeConfig(), history, {"deviatoric_error": 0.123456,
+                                                                       "test_psnr": 30.0}, 12.0)
+    text = repr(result)
+    assert "\n" not in text and len(text) < 150 and "10000 iterations" in text and "0.1235" in text

@@ -335,6 +335,22 @@ def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
     assert metrics.best_fit_floor(field, bending, scene, shapes, points, fit_points_per_axis=40) < 1e-4
 
 
+def test_the_grid_floor_is_a_floor_no_grid_scores_below():
+    scene = mi_nest.load_scene("disk_compression", res=8, load=200, contact_width=4)
+    shapes = specimen_shapes(scene)
+    truth = shapes[0].interior_medium().field
+    points = metrics.evaluation_points(scene, shapes, 20)
+    field = make_field(FieldConfig(kind="grid", resolution=8), *specimen_bounds(shapes), 1.0)
+    floor = metrics.grid_floor(field, truth, points)
+    assert 0 < floor < metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
+    assert floor < metrics.representation_floor(field, truth, points)
+    nodes = metrics._fitted_nodes(field, truth, points)
+    assert metrics._grid_error(field, nodes, truth, points) == pytest.approx(floor)
+    rng = np.random.default_rng(3)
+    for size in (1e-3, 1e-2, 1e-1):      # any grid nearby scores worse: the fit is the minimum
+        assert metrics._grid_error(field, nodes + size * rng.standard_normal(nodes.shape), truth, points) > floor
+
+
 def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
     scene = _scene()
     # At 8 x 8 pixels the load points' fringes alias: the run says so before it starts.

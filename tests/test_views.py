@@ -94,7 +94,7 @@ def test_the_held_out_comparison_shows_the_capture_beside_the_same_render(result
     dataset = mi_nest.Dataset(result / "data")
     views = held_out_views(source, count=2, channel="pol.45.0.135")
     assert len(views) == min(2, len(dataset.split("test")))
-    for (rotation, captured, rendered), position in zip(views, dataset.split("test")):
+    for (rotation, captured, rendered, _), position in zip(views, dataset.split("test")):
         np.testing.assert_array_equal(captured, dataset.view(position, ["pol.45.0.135"])["pol.45.0.135"])
         expected = render_view(source, rotation["azimuth"], rotation["elevation"]).channels["pol.45.0.135"]
         np.testing.assert_allclose(rendered, expected, atol=1e-6)

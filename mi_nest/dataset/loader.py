@@ -52,6 +52,20 @@ class _DecodedView:
 
 
 class Dataset:
+    """A multi-axis polariscope dataset on disk (``dataset.json`` and one EXR per rotation), simulated by
+    ``mi-nest simulate`` or captured by ``mi-nest acquire``: docs/datasets.md.
+
+    Views are read when first asked for and kept in a cache of at most ``cache_bytes``. ``rotations`` lists
+    each rotation's record (angles, camera ``to_world``, ``split``: ``train`` or ``test``); ``index`` is the
+    whole ``dataset.json`` (its ``source`` names the scene and defines a simulation was rendered from);
+    ``resolution`` is ``(width, height)``; ``channels`` the 16 measurements' names. A dataset that an
+    interrupted run left incomplete is refused unless ``allow_incomplete``.
+
+    >>> dataset = mi_nest.Dataset("data/disk")
+    >>> images = dataset.view(0)                    # {channel: (H, W) image} of the first rotation
+    >>> dataset.split("test")                       # positions of the held-out rotations
+    """
+
     def __init__(self, directory: str | Path, allow_incomplete: bool = False, cache_bytes: int = CACHE_BYTES):
         self.directory = Path(directory)
         self.index = fmt.read_index(self.directory)
@@ -69,6 +83,7 @@ class Dataset:
         self._cache_bytes = int(cache_bytes)
 
     def __len__(self):
+        """The number of rotations whose files are present."""
         return len(self.rotations)
 
     def __repr__(self):
@@ -103,6 +118,7 @@ class Dataset:
                              output_retardance=calibration["qwp2_retardance"]) for scope in scopes)
 
     def to_world(self, position: int) -> np.ndarray:
+        """The 4x4 camera-to-world matrix of rotation ``position`` (the camera turned about the specimen)."""
         return np.array(self.rotations[position]["to_world"])
 
     def view(self, position: int, channels: Sequence[str] | None = None) -> dict[str, np.ndarray]:

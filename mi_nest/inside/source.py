@@ -7,6 +7,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
+from ..dataset.truth import recorded_scene, truth_scene
 from ..fields import StressField
 from ..reconstruct import Reconstruction
 from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
@@ -35,14 +36,15 @@ class ViewSource:
         return self.reconstruction is not None
 
     def truth(self) -> ViewSource | None:
-        """The same scene with its own stress, the truth a reconstruction of simulated data is compared with
-        (None for a scene itself, or for a reconstruction of captured data)."""
+        """The scene a reconstruction's simulated dataset was rendered from, with its own stress: the truth the
+        reconstruction is compared with (None for a scene itself, or for a reconstruction of captured data)."""
         if self.reconstruction is None:
             return None
-        kind = self.reconstruction.source.get("dataset_source", {}).get("kind")
-        if kind != "simulated":
+        dataset_source = self.reconstruction.source.get("dataset_source", {})
+        if recorded_scene(dataset_source) is None:
             return None
-        truth = ViewSource(self.scene, None, f"truth of {self.name}")
+        truth = ViewSource(truth_scene(self.scene, dataset_source, f"the dataset of {self.name}"), None,
+                           f"truth of {self.name}")
         truth.reference, truth.center = self.reference, self.center     # the scene's camera may have moved since
         return truth
 

@@ -17,8 +17,9 @@ from .. import interrupts
 from ..dataset import Dataset
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
+from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope
-from ..reconstruct.metrics import psnr
+from ..reconstruct.evaluation import view_psnr
 from ..render import RenderResult, render
 from ..scene import photoelastic_integrator, pose
 from .plots import pyplot, save_figure
@@ -120,9 +121,10 @@ def write_animation(path: str | Path, images: list[np.ndarray], fps: float = 12.
 
 
 def held_out_views(source: ViewSource, count: int = 6, channel: str | None = None,
-                   spp: int | None = None) -> list[tuple[dict, np.ndarray, np.ndarray]]:
+                   spp: int | None = None) -> list[tuple[dict, np.ndarray, np.ndarray, float]]:
     """Up to ``count`` of the dataset's held-out rotations of a reconstruction: ``(rotation, captured,
-    rendered)`` images of ``channel`` (default: the dataset's first), rendered by :func:`render_view`."""
+    rendered, psnr)``, images of ``channel`` (default: the dataset's first) rendered by :func:`render_view`,
+    and the PSNR of all 16 measurements over the specimen's pixels, as ``mi-nest reconstruct`` reports it."""
     if not source.is_reconstruction:
         raise ValueError(f"{source.name} is a scene; held-out views are a reconstruction's: give the output "
                          "directory of mi-nest reconstruct")
@@ -138,17 +140,19 @@ def held_out_views(source: ViewSource, count: int = 6, channel: str | None = Non
         interrupts.check()
         rotation = dataset.rotations[position]
         rendered = render_view(source, rotation["azimuth"], rotation["elevation"], spp=spp)
-        views.append((rotation, dataset.view(position, [channel])[channel], rendered.channels[channel]))
+        predicted = np.stack([rendered.channels[name].ravel() for name in MEASUREMENTS], axis=-1)
+        ratio = view_psnr(predicted, dataset, position, source.reconstruction.config.optimiser.mask)
+        views.append((rotation, dataset.view(position, [channel])[channel], rendered.channels[channel], ratio))
     return views
 
 
 def write_held_out_sheet(path: str | Path, views: list, title: str) -> Path:
-    """Captured above rendered, one column per held-out rotation, with each pair's PSNR."""
+    """Captured above rendered, one column per held-out rotation, with each rotation's PSNR (its 16
+    measurements over the specimen's pixels)."""
     plt = pyplot()
     figure, axes = plt.subplots(2, len(views), figsize=(2.6 * len(views), 5.8), squeeze=False,
                                 constrained_layout=True)
-    for column, (rotation, captured, rendered) in enumerate(views):
-        ratio = psnr(rendered, captured)
+    for column, (rotation, captured, rendered, ratio) in enumerate(views):
         for row, (image, label) in enumerate(((captured, "captured"), (rendered, "rendered"))):
             axis = axes[row, column]
             axis.imshow(np.clip(image, 0, 1), cmap="gray", vmin=0, vmax=1, interpolation="nearest")

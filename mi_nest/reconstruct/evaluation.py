@@ -29,6 +29,13 @@ def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray |
     return dataset.view(position, [mask])[mask].ravel() > 0.5
 
 
+def view_psnr(predicted: np.ndarray, dataset: Dataset, position: int, mask: str | None) -> float:
+    """The PSNR (dB, peak 1) of ``(H * W, 16)`` predicted intensities against rotation ``position``'s
+    measurements over its ``mask`` pixels: the one definition that ``reconstruct`` and ``compare`` report."""
+    measured = dataset.measurements(position).reshape(-1, len(MEASUREMENTS))
+    return metrics.psnr(predicted, measured, view_mask(dataset, position, mask))
+
+
 def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
                  split: str = "train",
                  mask: str | None = "mask.dolp") -> float:
@@ -56,14 +63,13 @@ def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integ
         errors = metrics.stress_errors(stress_field, truth, points)
         results.update(deviatoric_error=errors.deviatoric, principal_difference_error=errors.principal_difference,
                        evaluation_points=errors.points)
-        floor = metrics.representation_floor(stress_field, truth, points)
+        floor = metrics.grid_floor(stress_field, truth, points)
         if floor is not None:
-            results["representation_floor"] = floor
+            results["grid_floor"] = floor
     test = dataset.split("test")[:views]
     if test:
         view_rays = ViewRays(scene, dataset)
-        values = [metrics.psnr(predict_view(scene, view_rays, integrator, position, stress_field),
-                               dataset.measurements(position).reshape(-1, len(MEASUREMENTS)),
-                               view_mask(dataset, position, mask)) for position in test]
+        values = [view_psnr(predict_view(scene, view_rays, integrator, position, stress_field), dataset, position,
+                            mask) for position in test]
         results.update(test_psnr=float(np.mean(values)), test_views=len(test))
     return results

@@ -93,25 +93,35 @@ def representation_floor(field: TrainableField, truth: StressField, points: np.n
 
 def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, shapes: list[mi.Shape],
                    points: np.ndarray, fit_points_per_axis: int = 3 * EVALUATION_POINTS) -> float | None:
-    """The deviatoric error of the least-squares fit of ``truth`` by a grid like ``field``.
-
-    Sampling the truth at the nodes (:func:`representation_floor`) is one grid,
-    not the best one: near stress concentrations the nodal values miss the
-    field between them. The fit minimises the volume L2 error over a lattice
-    ``fit_points_per_axis`` fine, so no optimiser of this grid can do much
-    better. Only for grids (None otherwise).
-    """
+    """The deviatoric error at ``points`` of the least-squares fit of ``truth`` by a grid like ``field`` on a
+    lattice ``fit_points_per_axis`` fine: the volume's best grid, near stress concentrations far better than
+    the nodal values (:func:`representation_floor`). Only for grids (None otherwise)."""
     if getattr(field, "kind", None) != "grid":
         return None
+    return _grid_error(field, _fitted_nodes(field, truth, evaluation_points(scene, shapes, fit_points_per_axis)),
+                       truth, points)
+
+
+def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) -> float | None:
+    """The lowest deviatoric error that any grid like ``field`` can score at ``points``: the least-squares fit
+    of ``truth`` at those very points. The error is one L2 norm over the same points, and a node's five stored
+    components enter it through one positive-definite form shared by every point, so the componentwise fit
+    minimises it: no optimiser of this grid scores lower (up to the solver's tolerance). Only for grids."""
+    if getattr(field, "kind", None) != "grid":
+        return None
+    return _grid_error(field, _fitted_nodes(field, truth, points), truth, points)
+
+
+def _fitted_nodes(field, truth, fit_points):
+    """The nodes (five stored components, x fastest) of the grid like ``field`` that fits ``truth`` at
+    ``fit_points`` in the least-squares sense."""
     import scipy.sparse.linalg
-    fit_points = evaluation_points(scene, shapes, fit_points_per_axis)
     target = deviatoric_part(sample(truth, fit_points))[:, [0, 1, 3, 4, 5]] / field.stress_scale
     basis = trilinear_basis(fit_points, field.bbox_min, field.bbox_max, field.shape)
-    # A whisper of damping fixes the nodes no lattice point sees (outside the specimen) at zero.
-    nodes = np.stack([scipy.sparse.linalg.lsqr(basis, component, damp=1e-4, atol=1e-8, btol=1e-8,
-                                               iter_lim=20 * basis.shape[1])[0]
-                      for component in target.T], axis=-1)
-    return _grid_error(field, nodes, truth, points)
+    # A whisper of damping fixes the nodes no point sees (outside the specimen) at zero.
+    return np.stack([scipy.sparse.linalg.lsqr(basis, component, damp=1e-4, atol=1e-8, btol=1e-8,
+                                              iter_lim=20 * basis.shape[1])[0]
+                     for component in target.T], axis=-1)
 
 
 def _grid_error(field, nodes, truth, points):

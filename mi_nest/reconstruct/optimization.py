@@ -17,10 +17,11 @@ import numpy as np
 
 from .. import interrupts
 from ..dataset import Dataset
+from ..dataset.truth import recorded_scene, scene_field, truth_scene
 from ..fields.base import StressField
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
-from ..scene import load_scene, specimen_bounds, specimen_media, specimen_shapes
+from ..scene import load_scene, scene_file, specimen_bounds, specimen_media, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .config import OptimizeConfig
@@ -34,11 +35,16 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
              **options) -> Reconstruction:
     """Reconstruct the stress field of ``scene``'s specimens from ``dataset``.
 
-    ``scene`` (an ``mi.Scene`` or a scene file) gives the specimen shapes (the
-    known occupancy), their material and the camera; its own stress field is
-    replaced during the optimisation and, with ``truth="scene"``, serves as the
-    ground truth of the error metrics (pass ``truth=None`` for real captures,
-    or any ``StressField``). ``options`` are :class:`OptimizeConfig`'s: flat
+    ``scene`` (an ``mi.Scene``, or a scene file or shipped name, loaded with
+    the defines the dataset records) gives the specimen shapes (the known
+    occupancy), their material and the camera; its own stress field is
+    replaced during the optimisation. With ``truth="scene"`` the error metrics
+    are measured against the field the dataset was simulated from (the scene
+    and defines its ``dataset.json`` records; a given scene that differs is
+    named value by value in a warning, and refused when its specimens lie
+    elsewhere); pass ``truth=None`` for real captures, or any ``StressField``.
+
+    ``options`` are :class:`OptimizeConfig`'s: flat
     options (``iterations=300, kind="mlp"``...), whole groups
     (``regulariser=NO_REGULARISER``), or ``config=`` a whole configuration that
     the others override. The defaults are the configuration that met the
@@ -50,25 +56,24 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     """
     base = options.pop("config", None)
     config = OptimizeConfig(**options) if base is None else replace(base, **options)
-    if not isinstance(scene, mi.Scene):
-        scene = load_scene(scene)
     if not isinstance(dataset, Dataset):
         dataset = Dataset(dataset)
+    if not isinstance(scene, mi.Scene):
+        scene = _load_as_recorded(scene, dataset)
     shapes = specimen_shapes(scene)
     media = specimen_media(scene)
     _check_material(media, dataset)
     _warn_if_aliased(dataset)
     dataset.check_measurements(config.optimiser.mask)
-    truth_field = media[0].field if truth == "scene" else truth
-    if truth == "scene" and len({id(m.field) for m in media}) > 1:
-        truth_field = None
+    if truth == "scene":
+        truth = scene_field(truth_scene(scene, dataset.index.get("source") or {}, str(dataset.directory)))
 
     low, high = specimen_bounds(shapes)
     config = settle(config, high - low)
     scale = stress_scale(media, low, high)
     run = Run(scene, dataset, config, low, high, scale, output, progress)
-    if truth_field is not None and config.reporting.track_error_every:
-        run.error_probe = metrics.ErrorProbe(truth_field, metrics.evaluation_points(scene, shapes))
+    if truth is not None and config.reporting.track_error_every:
+        run.error_probe = metrics.ErrorProbe(truth, metrics.evaluation_points(scene, shapes))
     with contextlib.ExitStack() as stack:
         if output is not None:
             stack.enter_context(locked_directory(output))
@@ -78,7 +83,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         with interrupts.deferred():
             run.loop()
         result = run.result()
-        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth_field,
+        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth,
                                        config.reporting.evaluate_views, config.optimiser.mask, shapes))
         if output is not None:
             result.save(output)
@@ -89,6 +94,14 @@ def stress_scale(media: list[mi.Medium], low: np.ndarray, high: np.ndarray) -> f
     """The stress (MPa) that gives about one fringe across the specimen: fields are stored in its units."""
     length = float(np.prod(high - low)) ** (1.0 / 3.0)
     return max(m.fringe_value for m in media) / length
+
+
+def _load_as_recorded(scene: str | Path, dataset: Dataset) -> mi.Scene:
+    """The scene file or name loaded with the dataset's defines where the dataset was simulated from it."""
+    record = recorded_scene(dataset.index.get("source") or {})
+    if record is not None and scene_file(scene) == record.file:
+        return record.load()
+    return load_scene(scene)
 
 
 def _warn_if_aliased(dataset):
