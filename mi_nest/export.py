@@ -13,7 +13,7 @@ from .fields.base import sample
 from .io import export_format
 from .io.grid import StressGrid, grid_cells, grid_nodes
 from .io.tsv import write_stress_file
-from .io.vtk import write_grid_vtu
+from .io.vtk import write_mesh_vtu
 from .scene import specimen_shapes
 
 
@@ -40,21 +40,28 @@ def specimen_grids(scene: mi.Scene, resolution: int = 64, field: StressField | N
     return grids
 
 
+# What the first line of a deviatoric field's .TSV says after its version.
+DEVIATORIC_NOTE = "deviatoric stress (trace-free; photoelasticity does not measure the mean stress)"
+
+
 def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64,
-                 field: StressField | None = None) -> list[Path]:
+                 field: StressField | None = None, deviatoric: bool = False) -> list[Path]:
     """Write each specimen's field (or ``field`` in each) as ``output`` (``output-<i>.<suffix>`` when there
-    are several): ``.vtu`` over its bounding box, ``.TSV`` as the hexahedra of that grid whose centres lie
-    inside the specimen (what 3D-TSV traces stress lines through)."""
+    are several): the hexahedra of a grid over its bounding box whose centres lie inside the specimen, as
+    ``.vtu`` or as ``.TSV`` (what 3D-TSV traces stress lines through). A ``deviatoric`` field (a
+    reconstruction's) is labelled so in both: the ``.vtu``'s arrays are ``deviatoric_stress``, ``s_1``...,
+    the ``.TSV``'s first line says it."""
     output = Path(output)
     kind = export_format(output)
     grids = specimen_grids(scene, resolution, field)
     paths = [output] if len(grids) == 1 else [output.with_name(f"{output.stem}-{i}{output.suffix}")
                                               for i in range(len(grids))]
     for shape, grid, path in zip(specimen_shapes(scene), grids, paths):
+        nodes, cells, stress = _inside_hexahedra(scene, shape, grid)
         if kind == ".vtu":
-            write_grid_vtu(path, grid)
+            write_mesh_vtu(path, nodes, cells, stress, deviatoric)
         else:
-            write_stress_file(path, *_inside_hexahedra(scene, shape, grid))
+            write_stress_file(path, nodes, cells, stress, note=DEVIATORIC_NOTE if deviatoric else None)
     return paths
 
 

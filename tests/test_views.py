@@ -145,3 +145,45 @@ def test_a_reconstruction_exports_to_3d_tsv_and_reads_back_as_its_field(result, 
     field = Reconstruction.load(result / "result").field
     np.testing.assert_allclose(model.stress, sample(field, model.vertices), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(model.stress[:, :3].sum(axis=1), 0.0, atol=1e-5)     # trace-free
+
+
+def test_a_reconstruction_s_exports_say_deviatoric_and_hold_only_the_part(result, tmp_path, capsys):
+    import meshio
+    from mi_nest.io.tsv import read_stress_file
+    vtu, tsv = tmp_path / "field.vtu", tmp_path / "field.TSV"
+    for output in (vtu, tsv):
+        assert main(["export", str(result / "result"), "-o", str(output), "--resolution", "16"]) == 0
+    exported = meshio.read(vtu)
+    assert {"deviatoric_stress", "s_1", "s_3", "s_1_direction", "s_1_minus_s_3"} <= set(exported.point_data)
+    assert not {"stress", "sigma_1"} & set(exported.point_data)
+    np.testing.assert_allclose(np.trace(exported.point_data["deviatoric_stress"].reshape(-1, 3, 3), axis1=1, axis2=2),
+                               0.0, atol=1e-4)
+    # Every cell's centre lies inside the 40 mm disk, 6 mm thick; its nodes a cell's diagonal from it at most.
+    cells = exported.cells_dict["hexahedron"]
+    centres = exported.points[cells].mean(axis=1)
+    assert np.hypot(centres[:, 0], centres[:, 1]).max() < 20.0 and np.abs(centres[:, 2]).max() < 3.0
+    first_line = tsv.read_text().splitlines()[0]
+    assert first_line.startswith("Version 2.0") and "deviatoric stress" in first_line
+    assert len(read_stress_file(tsv).vertices) == len(exported.points)       # mi_nest reads its own note back
+    assert "deviatoric_stress and s_1..s_3" in capsys.readouterr().out
+
+
+def test_principal_names_a_deviator_and_its_colour_bars_show_what_they_clip(result, tmp_path, capsys):
+    output = tmp_path / "principal.png"
+    assert main(["principal", str(result / "result"), "--plane", "z=0", "--res", "24", "-o", str(output)]) == 0
+    printed = capsys.readouterr().out
+    assert "deviatoric s_1" in printed and "deviatoric s_3" in printed and " sigma_1" not in printed
+    from mi_nest.inside import principal
+    plt = principal.pyplot()
+    figure, axis = plt.subplots()
+    values = np.array([[0.0, 0.5], [1.0, 9.0]])
+    drawn = axis.imshow(values, vmin=-1, vmax=1)
+    principal._colour_bar(figure, axis, drawn, values, -1.0, 1.0, "s_1 (MPa)")
+    bar = figure.axes[-1]
+    assert "beyond the ends: 0 to 9" in bar.get_ylabel()
+    plt.close(figure)
+
+
+def test_the_test_view_is_a_labelled_full_size_figure(result):
+    image = iio.imread(result / "result" / "test_view.png")
+    assert image.shape[1] >= 1000 and image.shape[0] >= 400        # not a 2-image-wide thumbnail

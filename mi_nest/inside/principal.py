@@ -115,9 +115,10 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
         for column, name in enumerate(QUANTITIES):
             axis = axes[row, column]
             low, high, cmap = limits[name]
-            drawn = axis.imshow(np.ma.masked_invalid(data.quantity(name)), cmap=cmap, vmin=low, vmax=high,
+            values = data.quantity(name)
+            drawn = axis.imshow(np.ma.masked_invalid(values), cmap=cmap, vmin=low, vmax=high,
                                 extent=extent, interpolation="nearest")
-            figure.colorbar(drawn, ax=axis, shrink=0.85, label=f"{names[name]} (MPa)")
+            _colour_bar(figure, axis, drawn, values, low, high, f"{names[name]} (MPa)")
             if column < 3:
                 _glyphs(axis, data, column)
             axis.set_title(f"{label} {names[name]}".strip())
@@ -130,11 +131,21 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
             bound = _symmetric_bound(errors[name])
             drawn = axis.imshow(np.ma.masked_invalid(errors[name]), cmap="RdBu_r", vmin=-bound, vmax=bound,
                                 extent=extent, interpolation="nearest")
-            figure.colorbar(drawn, ax=axis, shrink=0.85, label=f"error of {names[name]} (MPa)")
+            _colour_bar(figure, axis, drawn, errors[name], -bound, bound, f"error of {names[name]} (MPa)")
             axis.set_title(f"reconstruction - truth: {names[name]}")
             axis.set_xlabel("image right (mm)")
             axis.set_ylabel("image up (mm)")
     return save_figure(figure, path, title, dpi=90)
+
+
+def _colour_bar(figure, axis, drawn, values, low, high, label):
+    """A colour bar whose pointed ends say that values lie beyond it (singular loads), with their range."""
+    finite = np.asarray(values)[np.isfinite(values)]
+    below, above = finite.size and finite.min() < low, finite.size and finite.max() > high
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}
+    if below or above:
+        label = f"{label}; beyond the ends: {finite.min():.3g} to {finite.max():.3g}"
+    figure.colorbar(drawn, ax=axis, shrink=0.85, label=label, extend=extend[bool(below), bool(above)])
 
 
 def _limits(images, name):

@@ -24,6 +24,34 @@ def write_preview(path: str | Path, image: np.ndarray, vmin: float = 0.0, vmax: 
                vmin=vmin, vmax=vmax)
 
 
+def write_comparison(path: str | Path, panels: list[tuple[str, np.ndarray]], title: str,
+                     panel_inches: float = 3.6) -> None:
+    """Labelled grey-level panels (intensities, 0 to 1) side by side and their difference (first minus second)
+    on a signed scale with a colour bar, each panel at least ``panel_inches`` wide whatever the image size."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    (first_label, first), (second_label, second) = panels
+    difference = np.asarray(first, np.float64) - np.asarray(second, np.float64)
+    bound = max(float(np.abs(difference).max()), 1e-6)
+    figure, axes = plt.subplots(1, 3, figsize=(3 * panel_inches + 1.0, panel_inches + 0.8), constrained_layout=True)
+    for axis, (label, image) in zip(axes, panels):
+        drawn = axis.imshow(np.clip(image, 0, 1), cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        axis.set_title(label)
+    figure.colorbar(drawn, ax=axes[:2], shrink=0.8, label="intensity (normalised)")
+    shown = axes[2].imshow(difference, cmap="RdBu_r", vmin=-bound, vmax=bound, interpolation="nearest")
+    axes[2].set_title(f"{first_label} - {second_label}")
+    figure.colorbar(shown, ax=axes[2], shrink=0.8, label="difference")
+    for axis in axes:
+        axis.set_xlabel("pixel")
+    axes[0].set_ylabel("pixel")
+    figure.suptitle(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, format="png", dpi=100)
+    plt.close(figure)
+
+
 def mesh_preview_figure(nodes: np.ndarray, surface: np.ndarray, stress: np.ndarray,
                         boundary: BoundaryConditions | None = None, title: str = "") -> Figure:
     """A 3D view of a mesh's boundary surface coloured by von Mises stress, with its boundary conditions.

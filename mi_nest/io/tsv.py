@@ -254,13 +254,16 @@ def _node_ids(path, header_row, name, table, vertex_count):
 
 
 def write_stress_file(path: str | Path, vertices: np.ndarray, elements: np.ndarray, stress: np.ndarray,
-                      node_forces: np.ndarray | None = None, fixed_nodes: np.ndarray | None = None) -> None:
+                      node_forces: np.ndarray | None = None, fixed_nodes: np.ndarray | None = None,
+                      note: str | None = None) -> None:
     """Write a 3D-TSV file (element and node ids one-based).
 
     A ``.TSV`` name (any case) gets today's header lines and always both
     boundary-condition sections, as 3D-TSV writes them; ``stress`` with one row
     per element (and not per vertex) is written as ``Stress Data Type: ELEMENT``.
-    Other names get the early ``.stress`` layout (nodal stress only).
+    Other names get the early ``.stress`` layout (nodal stress only). A ``note``
+    (one line) follows ``Version 2.0`` on its line: 3D-TSV's reader skips that
+    line whole, and so the note tells a person what the file holds.
     """
     elements = np.asarray(elements, dtype=np.int64) + 1
     today = Path(path).suffix.lower() == ".tsv"
@@ -272,7 +275,7 @@ def write_stress_file(path: str | Path, vertices: np.ndarray, elements: np.ndarr
     fixed = np.zeros(0, np.int64) if fixed_nodes is None else np.asarray(fixed_nodes, dtype=np.int64)
     with open(path, "w", encoding="ascii") as out:
         if today:
-            out.write(f"Version 2.0\n{stress_data_type_line(element_stress)}"
+            out.write(f"Version 2.0{'' if note is None else '  ' + note}\n{stress_data_type_line(element_stress)}"
                       f"Solid {'Hex' if elements.shape[1] == 8 else 'Tet'} 1\n")
         out.write(f"Vertices: {len(vertices)}\n")
         np.savetxt(out, np.asarray(vertices), fmt="%.9e")

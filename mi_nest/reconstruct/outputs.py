@@ -9,29 +9,34 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..io.exr import write_channels
-from ..io.preview import write_preview
+from ..io.preview import write_comparison, write_preview
 from ..render import render
 from .checkpoints import Reconstruction
-from .evaluation import predict_view
+from .evaluation import predict_view, view_psnr
 from .rays import ViewRays
 
 
 def write_test_view(scene: mi.Scene, result: Reconstruction, output: str | Path, dataset: Dataset) -> str:
-    """EXR of the first held-out rotation, reconstructed beside measured, and a PNG of one channel pair;
-    returns the names written, for the command's report."""
+    """EXR of the first held-out rotation, reconstructed beside measured, and a labelled PNG of one channel:
+    reconstructed, measured and their difference; returns the names written, for the command's report."""
     test = dataset.split("test") or dataset.split("train")
     position = test[0]
     width, height = dataset.resolution
     predicted = predict_view(scene, ViewRays(scene, dataset), result.integrator(scene), position, result.field)
     measured = dataset.measurements(position)
-    channels = {f"reconstructed.{name}": predicted[:, i].reshape(height, width) for i, name in enumerate(dataset.channels)}
+    channels = {f"reconstructed.{name}": predicted[:, i].reshape(height, width)
+                for i, name in enumerate(dataset.channels)}
     channels.update({f"measured.{name}": measured[..., i] for i, name in enumerate(dataset.channels)})
     output = Path(output)
     write_channels(output / "test_view.exr", channels)
     shown = "pol.45.0.135" if "pol.45.0.135" in dataset.channels else dataset.channels[0]
-    write_preview(output / "test_view.png", np.concatenate([channels[f"reconstructed.{shown}"],
-                                                           channels[f"measured.{shown}"]], axis=1))
-    return ", test_view.exr, test_view.png (reconstructed | measured)"
+    rotation = dataset.rotations[position]
+    ratio = view_psnr(predicted, dataset, position, result.config.optimiser.mask)
+    write_comparison(output / "test_view.png", [("reconstructed", channels[f"reconstructed.{shown}"]),
+                                                ("measured", channels[f"measured.{shown}"])],
+                     f"held-out rotation {rotation['index']} (azimuth {rotation['azimuth']:.1f}, elevation "
+                     f"{rotation['elevation']:.1f}): {shown}; PSNR of its 16 measurements {ratio:.1f} dB")
+    return ", test_view.exr, test_view.png (reconstructed, measured, difference)"
 
 
 def write_truth_beside_reconstruction(scene: mi.Scene, reconstruction: Reconstruction, output: str | Path) -> str:
