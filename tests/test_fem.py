@@ -386,6 +386,58 @@ def test_volume_mesh_files_are_read_with_meshio(tmp_path):
         read_volume_mesh(tmp_path / "skin.vtu")
 
 
+# One tetrahedron as gmsh 4.1 writes it: entities with physical tags and bounding entities (which meshio keeps
+# as a cell set of its own, 'gmsh:bounding_entities', of entity tags rather than cell indices).
+GMSH_41_TET = """$MeshFormat
+4.1 0 8
+$EndMeshFormat
+$PhysicalNames
+2
+2 1 "base"
+3 2 "solid"
+$EndPhysicalNames
+$Entities
+0 0 1 1
+1 0 0 0 1 1 0 1 1 3 1 2 3
+1 0 0 0 1 1 1 1 2 1 1
+$EndEntities
+$Nodes
+1 4 1 4
+3 1 0 4
+1
+2
+3
+4
+0 0 0
+1 0 0
+0 1 0
+0 0 1
+$EndNodes
+$Elements
+2 2 1 2
+2 1 2 1
+1 1 3 2
+3 1 4 1
+2 1 2 3 4
+$EndElements
+"""
+
+
+def test_gmsh_physical_surfaces_are_named_groups_in_msh_4_1_and_2_2(tmp_path):
+    import meshio
+    version_4 = tmp_path / "tet41.msh"
+    version_4.write_text(GMSH_41_TET)
+    mesh = read_volume_mesh(version_4)
+    assert list(mesh.boundaries) == ["base"] and len(mesh.boundaries["base"]) == 1
+    # meshio keeps a 2.2 file's groups only as a physical tag per cell and the names in field_data.
+    version_2 = tmp_path / "tet22.msh"
+    meshio.write(version_2, meshio.read(version_4), file_format="gmsh22", binary=False)
+    assert not meshio.read(version_2).cell_sets
+    again = read_volume_mesh(version_2)
+    assert list(again.boundaries) == ["base"]
+    np.testing.assert_array_equal(again.facets[:, again.boundaries["base"]], mesh.facets[:, mesh.boundaries["base"]])
+
+
 def test_gmsh_meshes_a_closed_surface_for_a_patch_test():
     pytest.importorskip("gmsh")
     surface = trimesh.creation.box(extents=(L, W, H))

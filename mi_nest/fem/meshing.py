@@ -14,9 +14,10 @@ tetrahedra. The cut of every quadrilateral side runs from the lower-numbered
 bottom node to the higher-numbered top node, a rule both prisms sharing the side
 apply identically, so the tetrahedra are conforming without any search.
 
-:class:`MeshFileGeometry` reads volume meshes (gmsh ``.msh``, ``.vtu``,
-``.vtk``, ... through meshio, MIT; the meshes of 3D-TSV stress files, hexahedra
-cut into six tetrahedra) and, when the optional ``gmsh`` extra is
+:class:`MeshFileGeometry` reads volume meshes (gmsh ``.msh`` 2.2 or 4, ``.vtu``,
+``.vtk``, ... through meshio, MIT; named surfaces from gmsh physical surfaces and
+Abaqus sets; the meshes of 3D-TSV stress files, hexahedra cut into six
+tetrahedra) and, when the optional ``gmsh`` extra is
 installed (``pip install mi_nest[gmsh]``; gmsh is GPL, so it is never a hard
 dependency), tetrahedralises closed surfaces (``.stl``, ``.ply``, ``.obj``).
 """
@@ -318,14 +319,29 @@ def read_volume_mesh(path: str | Path) -> MeshTet:
 
 
 def _surface_groups(data):
-    """Named sets of boundary triangles (meshio ``cell_sets``: gmsh physical groups, Abaqus sets)."""
+    """Named sets of boundary triangles: meshio ``cell_sets`` (gmsh 4 physical groups, Abaqus sets) and
+    the gmsh physical surfaces named in ``field_data``, which is all meshio keeps of a gmsh 2.2 file's
+    groups (a ``gmsh:physical`` tag per cell, ``field_data[name] = [tag, dimension]``)."""
+    def triangles_of(blocks_and_picks):
+        triangles = [block.data[pick][:, :3] for block, pick in blocks_and_picks
+                     if block.type in ("triangle", "triangle6") and np.size(block.data[pick])]
+        return np.concatenate(triangles) if triangles else None
+
     groups = {}
     for name, per_block in data.cell_sets.items():
-        triangles = [block.data[np.asarray(indices, dtype=np.int64)][:, :3]
-                     for block, indices in zip(data.cells, per_block)
-                     if block.type in ("triangle", "triangle6") and len(indices)]
-        if triangles:
-            groups[name] = np.concatenate(triangles)
+        if name.startswith("gmsh:"):     # meshio's own bookkeeping (bounding entities), not a group
+            continue
+        triangles = triangles_of((block, np.asarray(indices, dtype=np.int64))
+                                 for block, indices in zip(data.cells, per_block))
+        if triangles is not None:
+            groups[name] = triangles
+    physical = data.cell_data.get("gmsh:physical")
+    for name, value in data.field_data.items():
+        if physical is None or name in groups or np.shape(value) != (2,) or value[1] != 2:
+            continue
+        triangles = triangles_of((block, tags == value[0]) for block, tags in zip(data.cells, physical))
+        if triangles is not None:
+            groups[name] = triangles
     return groups
 
 

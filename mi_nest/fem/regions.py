@@ -201,8 +201,12 @@ def boundary_facets_in(mesh: MeshTet, region: Region) -> np.ndarray:
     if isinstance(region, Group):
         groups = mesh.boundaries or {}
         if region.name not in groups:
-            raise FemError(f"the mesh has no surface group '{region.name}'; it has "
-                           f"{sorted(groups) if groups else 'none (only mesh files carry named groups)'}")
+            low, high = mesh.p.min(axis=1), mesh.p.max(axis=1)
+            extent = ", ".join(f"{axis} {lo:g} to {hi:g}" for axis, lo, hi in zip(_AXES, low, high))
+            raise FemError(f"the mesh has no surface group '{region.name}'; it has {sorted(groups) or 'none'}. "
+                           "Name its faces in the mesh file (gmsh physical surfaces in .msh, surface sets in "
+                           "Abaqus .inp; .vtu, .stl and 3D-TSV files carry no names) or select them by a plane: "
+                           f"x=<v>, y=<v> or z=<v> (a 'plane' region in a spec); the mesh spans {extent} mm")
         return np.intersect1d(groups[region.name], mesh.boundary_facets())
     facets = mesh.boundary_facets()
     corners = mesh.p[:, mesh.facets[:, facets]]               # (3, 3 corners, F)

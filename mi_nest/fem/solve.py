@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from ..fields.mesh import TetMeshStress
 from ..io.mesh import save_mesh_stress
+from ..io.tsv import BoundaryConditions
 from ..physics.tensors import von_mises
 from .config import FemError, number, parse_fields
 from .loads import check_rigid_modes, constraints, load_vector, rigid_body_modes
@@ -125,15 +126,18 @@ class SolveReport:
 
 @dataclass
 class FemResult:
-    """Nodal stress (``field``), nodal displacement (N, 3) mm, the skfem mesh and the report."""
+    """Nodal stress (``field``), nodal displacement (N, 3) mm, the skfem mesh, the report and the boundary
+    conditions at the mesh's vertices (node forces, fully fixed nodes), as 3D-TSV records them."""
     field: TetMeshStress
     displacement: np.ndarray
     mesh: object
     report: SolveReport
+    boundary: BoundaryConditions
 
     def save(self, path: str | Path) -> None:
-        """Write the stress as a mesh ``.npz`` (:func:`mi_nest.io.mesh.save_mesh_stress`)."""
-        save_mesh_stress(path, self.field.nodes, self.field.tets, self.field.stress)
+        """Write the stress and the boundary conditions as a mesh ``.npz``
+        (:func:`mi_nest.io.mesh.save_mesh_stress`)."""
+        save_mesh_stress(path, self.field.nodes, self.field.tets, self.field.stress, self.boundary)
 
     def summary(self) -> str:
         """The report plus where the stress and the displacement peak."""
@@ -340,4 +344,22 @@ def solve(mesh: MeshTet, material: Material | Mapping, loads: Sequence[Load | Ma
                          dofs=3 * basis.N, constrained_dofs=len(fixed.dofs), solver=method,
                          iterations=iterations, residual=residual, seconds=seconds,
                          applied=applied, reactions=reactions)
-    return FemResult(result_field, displacement, mesh, report)
+    return FemResult(result_field, displacement, mesh, report, vertex_conditions(basis, f, fixed.dofs))
+
+
+def vertex_conditions(basis: CellBasis, forces: np.ndarray, fixed_dofs: np.ndarray) -> BoundaryConditions:
+    """The load vector as forces on the mesh's vertices (a P2 edge node's force shared by its edge's two ends:
+    the total force and its balance are kept) and the vertices whose three components are fixed."""
+    nodal = forces.reshape(-1, 3)
+    at_vertices = nodal[basis.nodal_dofs[0]].copy()
+    if basis.edge_dofs.size:
+        edges = basis.mesh.edges
+        for end in edges:
+            np.add.at(at_vertices, end, 0.5 * nodal[basis.edge_dofs[0]])
+    size = np.abs(at_vertices).max(axis=1)
+    # The assembly leaves round-off (1e-15 of the largest force) on vertices no load reaches.
+    loaded = np.flatnonzero(size > 1e-12 * max(size.max(), 1e-300))
+    fixed_components = np.zeros(3 * basis.N, dtype=bool)
+    fixed_components[fixed_dofs] = True
+    fixed = np.flatnonzero(fixed_components.reshape(-1, 3)[basis.nodal_dofs[0]].all(axis=1))
+    return BoundaryConditions(loaded, at_vertices[loaded], fixed)

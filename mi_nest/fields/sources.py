@@ -11,7 +11,7 @@ import numpy as np
 
 from ..io.carti import read_carti_file
 from ..io.grid import GridFileError, StressGrid, grid_cells, load_stress_grid
-from ..io.mesh import is_mesh_npz, load_mesh_arrays
+from ..io.mesh import is_mesh_npz, load_mesh_arrays, load_mesh_boundary
 from ..io.tsv import TsvModel, read_stress_file
 from .mesh import TetMeshStress
 
@@ -88,7 +88,7 @@ def _mesh_cached(path, mtime_ns, size):
 
 def export_file(path: str | Path, output: str | Path, resolution: int = 64) -> str:
     """Write any stress file as ``.vtu`` or 3D-TSV ``.TSV`` (by ``output``'s suffix): meshes with their own
-    cells (and a 3D-TSV file's boundary conditions), grids as hexahedra."""
+    cells (and the boundary conditions a 3D-TSV file or a ``mi-nest fem`` result holds), grids as hexahedra."""
     from ..io import export_format
     from ..io.tsv import write_stress_file
     from ..io.vtk import write_mesh_vtu
@@ -97,9 +97,11 @@ def export_file(path: str | Path, output: str | Path, resolution: int = 64) -> s
     if Path(path).is_file() and is_mesh_file(path):
         nodes, cells, stress = mesh_arrays(path)
         TetMeshStress.from_cells(nodes, cells, stress)   # validates the mesh before writing it out
-        if is_tsv_file(path):
-            model = read_tsv_model(path)
-            boundary = {"node_forces": model.node_forces, "fixed_nodes": model.fixed_nodes}
+        conditions = read_tsv_model(path).boundary_conditions() if is_tsv_file(path) else (
+            load_mesh_boundary(path) if Path(path).suffix.lower() == ".npz" else None)
+        if conditions is not None:
+            boundary = {"node_forces": np.column_stack([conditions.force_nodes, conditions.forces]),
+                        "fixed_nodes": conditions.fixed_nodes}
         summary = f"{len(nodes)} nodes, {len(cells)} cells"
     else:
         grid = grid_from_file(path, resolution)
