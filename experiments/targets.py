@@ -97,7 +97,8 @@ def defaults(args):
         data, _ = common.dataset(name, args.output, args.rotations, args.res, defines)
         output = args.output / "results" / f"{name}_defaults"
         start = time.perf_counter()
-        subprocess.run([str(Path(sys.executable).parent / "mi-nest"), "reconstruct", str(data), "-o", str(output),
+        subprocess.run([str(Path(sys.executable).parent / "mi-nest"), "reconstruct", str(data), "--allow-aliased",
+                        "-o", str(output),
                         "--restart", "--no-progress"], check=True)
         record = json.loads((output / "reconstruction.json").read_text())
         config, metrics = record["config"], record["metrics"]

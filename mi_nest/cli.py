@@ -3,6 +3,7 @@ the package."""
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import warnings
@@ -14,6 +15,7 @@ import numpy as np
 from . import interrupts
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
 from .inside.slicing import REGION_HELP
+from .io.atomic import require_file_path
 from .physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS
 from .reconstruct import DivergenceError
 from .rig.errors import RigError
@@ -150,6 +152,9 @@ def _parser():
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
                                   "is the baseline: per-view unwrapping, then linear tomography)")
+    reconstruct.add_argument("--allow-aliased", action="store_true",
+                             help="reconstruct a dataset whose fringes are denser than the pixels in over 10%% of "
+                                  "the specimen (refused otherwise: their phase is lost; the result is marked)")
     reconstruct.add_argument("--no-truth", action="store_true", help="no ground-truth errors (real captures)")
     reconstruct.add_argument("--restart", action="store_true", help="ignore a checkpoint in the output directory")
     reconstruct.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -259,9 +264,23 @@ def _add_polariscope_options(parser):
 def _render(args):
     from .inside import open_source
     from .inside.views import render_view
+    from .io.exr import require_exr_name
     source = open_source(args.scene, dict(args.defines))
+    _refuse_overwriting_source({"-o": args.output, "--png": args.png}, args.scene, source)
+    require_exr_name(args.output)
     render_view(source, args.azimuth, args.elevation, _polariscope(args), args.load_scale, args.wavelength,
                 spp=args.spp, seed=args.seed, progress=not args.quiet).write(args.output, args.png)
+
+
+def _refuse_overwriting_source(outputs, text, source):
+    """Refuse ``outputs`` (option -> path) that are files ``source`` (opened from ``text``) was read from: its
+    scene's, and a reconstruction's own."""
+    from .inside.source import RESULT_FILES
+    from .io.atomic import refuse_overwriting_inputs
+    from .scene import scene_inputs, scene_origin
+    scene, defines = scene_origin(source.scene)
+    results = [Path(text) / name for name in RESULT_FILES] if source.is_reconstruction else []
+    refuse_overwriting_inputs(outputs, [*scene_inputs(scene, **defines), *results])
 
 
 def _polariscope(args):
@@ -277,6 +296,7 @@ def _turntable(args):
     from .inside.views import require_animation_path, turntable, write_animation
     require_animation_path(args.output)     # before anything renders
     source = open_source(args.source, dict(args.defines))
+    _refuse_overwriting_source({"-o": args.output}, args.source, source)
     images = turntable(source, args.frames, args.elevation, args.channel, _polariscope(args), args.load_scale,
                        args.wavelength, spp=args.spp, progress=True)
     # Intensities go from 0 to 1; any other channel is shown up to its largest value.
@@ -288,12 +308,15 @@ def _compare(args):
     from .inside import open_source
     from .inside.views import held_out_views, write_held_out_sheet
     source = open_source(args.result)
+    _refuse_overwriting_source({"-o": args.output}, args.result, source)
     if args.views < 1:
         raise ValueError(f"--views must be at least 1, got {args.views}")
     views = held_out_views(source, args.views, args.channel)
     path = write_held_out_sheet(args.output, views, f"{Path(args.result).name}: held-out rotations, "
                                 f"{args.channel or 'first channel'} (captured above, rendered below)")
-    print(f"wrote {path.resolve()} ({len(views)} held-out rotations)")
+    ratios = [view[3] for view in views]
+    print(f"wrote {path.resolve()} ({len(views)} held-out rotations; PSNR of the 16 measurements over the "
+          f"specimen {min(ratios):.1f} to {max(ratios):.1f} dB, mean {np.mean(ratios):.2f} dB)")
 
 
 def _demo(args):
@@ -301,28 +324,40 @@ def _demo(args):
 
 
 def _export(args):
-    from .fields.sources import export_file, is_stress_file, stress_file
+    from .fields.sources import SUPPORTED, export_file, is_stress_file, stress_file
     from .io import export_format
+    from .io.atomic import refuse_overwriting_inputs
     export_format(args.output)          # refused before a scene is loaded
+    suffix = Path(args.field).suffix
+    if not is_stress_file(args.field) and not Path(args.field).is_dir() and suffix.lower() not in ("", ".xml"):
+        raise ValueError(f"{args.field}: mi-nest export takes a stress file ({SUPPORTED}), a scene (.xml file or "
+                         f"shipped name) or a reconstruction directory, not a '{suffix}' file (a mesh holds no stress: "
+                         "solve it with mi-nest fem MESH --fix WHERE --load WHERE:FX,FY,FZ -o part.npz and export "
+                         "part.npz)")
     if is_stress_file(args.field):
+        refuse_overwriting_inputs({"-o": args.output}, [stress_file(args.field)])
         summary = export_file(stress_file(args.field), args.output, args.resolution)
         print(f"wrote {Path(args.output).resolve()} ({summary})")
         return
     from .export import export_scene
     from .inside import open_source
     source = open_source(args.field, dict(args.defines))
+    _refuse_overwriting_source({"-o": args.output}, args.field, source)
     if source.is_reconstruction:
-        print(f"{args.field}: the reconstruction's deviatoric stress (photoelasticity does not see the mean "
-              "stress; the principal directions and von Mises are the full stress's)")
-    for path in export_scene(source.scene, args.output, args.resolution, source.field):
+        print(f"{args.field}: the reconstruction's deviatoric stress, written as deviatoric_stress and s_1..s_3 "
+              "(photoelasticity does not see the mean stress; the principal directions and von Mises are the "
+              "full stress's)")
+    for path in export_scene(source.scene, args.output, args.resolution, source.field, source.is_reconstruction):
         print(f"wrote {path.resolve()}")
 
 
 def _fem(args):
     import dataclasses
     from .fem import FemError, load_spec, spec_from_flags
+    from .io.atomic import refuse_overwriting_inputs
     if (args.spec is None) == (args.mesh is None):
         raise FemError("give either --spec FILE or a MESH with --fix/--load/--pressure")
+    refuse_overwriting_inputs({"-o": args.output}, [args.spec or args.mesh])
     if args.spec is not None:
         spec = load_spec(args.spec)
     else:
@@ -354,6 +389,9 @@ def _bench(args):
 
 def _simulate(args):
     from .dataset import CameraModel, SimulationSettings, simulate
+    from .io.atomic import refuse_overwriting_inputs
+    from .scene import scene_inputs
+    refuse_overwriting_inputs({"-o": args.output}, scene_inputs(args.scene, **dict(args.defines)))
     camera = CameraModel(read_noise=args.noise, full_well=args.full_well, bits=args.bits, mosaic=args.mosaic,
                          seed=args.seed)
     settings = SimulationSettings(azimuths=args.azimuth, elevations=args.elevation, azimuth_range=args.azimuth_range,
@@ -370,7 +408,10 @@ def _show(args):
         return
     from .dataset import Dataset
     from .dataset.sheet import write_contact_sheet
+    from .io.atomic import refuse_overwriting_inputs
     dataset = Dataset(args.dataset, allow_incomplete=True)
+    refuse_overwriting_inputs({"-o": args.output}, [dataset.directory / "dataset.json",
+                                                    *(dataset.directory / r["file"] for r in dataset.rotations)])
     if args.channel not in dataset.channels:
         raise ValueError(f"unknown channel '{args.channel}'; the dataset has {list(dataset.channels)}")
     output = Path(args.output or Path(args.dataset) / "contact_sheet.png")
@@ -382,7 +423,9 @@ def _show(args):
 def _show_mesh(path, output):
     """Preview PNG of a mesh stress file: surface by von Mises stress, node forces as arrows, fixed nodes."""
     from .fields.sources import SUPPORTED, is_mesh_file, is_stress_file, load_mesh
+    from .io.atomic import refuse_overwriting_inputs
     from .io.preview import write_mesh_preview
+    refuse_overwriting_inputs({"-o": output}, [path])
     if not is_stress_file(path):
         raise ValueError(f"{path}: mi-nest show takes a dataset directory or a mesh stress file ({SUPPORTED})")
     if not is_mesh_file(path):
@@ -404,7 +447,11 @@ def _reconstruct(args):
     from .io.lock import locked_directory
     from .reconstruct import CheckpointError, optimize
     from .reconstruct.outputs import write_test_view
+    from .physics.aliasing import unresolved_dataset
     dataset = Dataset(args.dataset)
+    problem = unresolved_dataset(dataset.index.get("fringe_aliasing"), args.dataset)
+    if problem and not args.allow_aliased:
+        raise ValueError(f"{problem}; or pass --allow-aliased to reconstruct it anyway (the result is marked)")
     scene_file, defines = _reconstruction_scene(args, dataset)
     options = _reconstruction_options(args)
     scene = load_scene(scene_file, **defines)
@@ -443,15 +490,19 @@ def _reconstruction_options(args):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     if args.minutes is not None:
-        options["time_limit"] = 60.0 * args.minutes     # optimize's config refuses a non-positive limit
+        if not 0 < args.minutes < math.inf:
+            raise ValueError(f"--minutes must be a positive number of minutes, got {args.minutes:g}")
+        options["time_limit"] = 60.0 * args.minutes
         options.setdefault("iterations", UNBOUNDED_ITERATIONS)
     return options
 
 
 def _acquire(args):
+    from .io.atomic import refuse_overwriting_inputs
     from .rig import acquire as acquisition
     from .rig.config import load
     config = load(args.rig)
+    refuse_overwriting_inputs({"-o": args.output}, [config.source])
     if args.calibration is not None:
         config = replace(config, calibration=Path(args.calibration))
         config.calibrated_optics()      # a missing or foreign file is refused before anything moves
@@ -467,10 +518,11 @@ def _acquire(args):
 
 def _calibrate(args):
     import json
-    from .io.atomic import atomic_path
+    from .io.atomic import atomic_path, refuse_overwriting_inputs
     from .rig import acquire as acquisition
     from .rig.config import load
     config = load(args.rig)
+    refuse_overwriting_inputs({"-o": args.output}, [config.source])
     operator = acquisition.unattended_operator if args.yes else acquisition.terminal_operator
     calibration = acquisition.calibrate(config, operator=operator, check_handedness=not args.skip_handedness)
     print(calibration.describe())
@@ -482,11 +534,14 @@ def _calibrate(args):
 def _slice(args):
     from .inside import Plane, Region, SliceSpec, open_source, slice_render
     from .inside.plots import write_slice_maps
+    from .io.exr import require_exr_name
     from .physics.polariscope import polariscope_setting
     spec = SliceSpec(Plane.parse(args.plane, args.normal, args.offset), args.thickness,
                      None if args.region is None else Region.parse(args.region), args.res,
                      _polariscope(args) or polariscope_setting(), args.load_scale, args.wavelength)
     source = open_source(args.source, dict(args.defines))
+    _refuse_overwriting_source({"-o": args.output, "--png": args.png, "--maps": args.maps}, args.source, source)
+    require_exr_name(args.output)
     result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)
     if args.maps:
@@ -500,13 +555,15 @@ def _principal(args):
     from .inside.principal import source_slices, write_principal_figure
     plane = Plane.parse(args.plane, args.normal, args.offset)
     source = open_source(args.source, dict(args.defines))
+    _refuse_overwriting_source({"-o": args.output}, args.source, source)
     shown, truth = source_slices(source, plane, args.res)
     kind = "deviatoric principal stresses" if shown.deviatoric else "principal stresses"
     path = write_principal_figure(args.output, shown, truth, f"{Path(args.source).name}: {kind} at "
                                                              f"{plane.describe()}")
+    prefix = "deviatoric s" if shown.deviatoric else "sigma"
     print(f"{Path(args.source).name} at {plane.describe()}: " + ", ".join(
-        f"{name} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
-        for name in ("sigma_1", "sigma_3", "von_mises")))
+        f"{label} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
+        for name, label in (("sigma_1", f"{prefix}_1"), ("sigma_3", f"{prefix}_3"), ("von_mises", "von Mises"))))
     if truth is not None:
         error = shown.minus(truth)["von_mises"]
         print(f"von Mises against the truth: RMS error {np.sqrt(np.nanmean(error ** 2)):.3g} MPa "
@@ -516,10 +573,11 @@ def _principal(args):
 
 def _view(args):
     from .arguments import whole_number
-    from .inside.viewer import run_viewer
+    from .inside.viewer import PORTS, require_address, run_viewer
     for name in ("res", "moving_res"):
         whole_number(f"--{name.replace('_', '-')}", getattr(args, name), minimum=8)
-    whole_number("--port", args.port, minimum=0)
+    whole_number("--port", args.port, minimum=PORTS.start, maximum=PORTS.stop - 1)
+    require_address(args.host, args.port)       # before the scene loads
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         warnings.warn(f"serving on {args.host}: anyone who can reach this machine there can see the viewer")
     run_viewer(args.source, dict(args.defines), args.host, args.port, args.res, args.moving_res,
@@ -537,6 +595,19 @@ COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "b
             "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
             "turntable": _turntable, "compare": _compare, "principal": _principal,
             "view": _view}
+# The options naming a file that a command writes, with the suffix of an example name: one naming a directory is
+# refused before any work (a file cannot replace it).
+FILE_OUTPUTS = {"render": (("-o", "output", ".exr"), ("--png", "png", ".png")),
+                "slice": (("-o", "output", ".exr"), ("--png", "png", ".png"), ("--maps", "maps", ".png")),
+                "principal": (("-o", "output", ".png"),), "compare": (("-o", "output", ".png"),),
+                "show": (("-o", "output", ".png"),), "turntable": (("-o", "output", ".gif"),),
+                "export": (("-o", "output", ".vtu"),), "fem": (("-o", "output", ".npz"),),
+                "calibrate": (("-o", "output", ".json"),)}
+# What makes each command's work smaller when it runs out of memory.
+SMALLER = {"render": "lower the resolution (-D res=N) or --spp", "simulate": "lower --res or --spp",
+           "turntable": "lower the resolution (-D res=N) or --spp", "export": "lower --resolution",
+           "slice": "lower --res", "principal": "lower --res", "view": "lower --res and --moving-res",
+           "reconstruct": "lower --option batch_size (or pixel_samples)"}
 
 
 def _format_warning(message, category, filename, lineno, line=None):
@@ -561,6 +632,9 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args):
     formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
+        for option, name, suffix in FILE_OUTPUTS.get(args.command, ()):
+            if getattr(args, name) is not None:
+                require_file_path(getattr(args, name), option, suffix)
         COMMANDS[args.command](args)
     except KeyboardInterrupt as interrupt:
         return _interrupted(args.command, interrupt)
@@ -568,6 +642,11 @@ def _run(args):
         if interrupts.received():
             return _interrupted(args.command)
         print(f"mi-nest: error: {error}", file=sys.stderr)
+        return 2
+    except MemoryError as error:
+        # What no estimate refused up front; NumPy's says how much it wanted.
+        print(f"mi-nest: error: out of memory{f' ({error})' if str(error) else ''}: "
+              f"{SMALLER.get(args.command, 'make the work smaller')}, or free some memory", file=sys.stderr)
         return 2
     except Exception:
         # Ctrl-C inside a Dr.Jit or Mitsuba callback comes out as their own error.

@@ -14,7 +14,12 @@ from .io import export_format
 from .io.grid import StressGrid, grid_cells, grid_nodes
 from .io.tsv import write_stress_file
 from .io.vtk import write_mesh_vtu
+from .render import require_memory
 from .scene import specimen_shapes
+
+# Peak memory of an export per grid node: 420 to 540 bytes measured writing the disk's and the stacked disks'
+# .vtu and .TSV at resolutions 128 and 256.
+EXPORT_BYTES_PER_NODE = 600
 
 
 def specimen_grids(scene: mi.Scene, resolution: int = 64, field: StressField | None = None) -> list[StressGrid]:
@@ -27,15 +32,20 @@ def specimen_grids(scene: mi.Scene, resolution: int = 64, field: StressField | N
     """
     # Two nodes per axis at least: one would be a grid of zero spacing, written as a single cell.
     resolution = whole_number("resolution", resolution, minimum=2)
-    grids = []
-    for shape in specimen_shapes(scene):
-        medium = shape.interior_medium()
+    shapes = specimen_shapes(scene)
+    boxes = []
+    for shape in shapes:
         box = shape.bbox()
         lo, hi = np.array(box.min, dtype=np.float64).ravel(), np.array(box.max, dtype=np.float64).ravel()
         spacing = (hi - lo).max() / (resolution - 1)
-        counts = np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)
+        boxes.append((lo, hi, np.maximum(np.ceil((hi - lo) / spacing).astype(int) + 1, 2)))
+    node_count = sum(int(np.prod(counts)) for _, _, counts in boxes)
+    require_memory(node_count * EXPORT_BYTES_PER_NODE, f"an export at resolution {resolution} ({node_count} grid "
+                   f"nodes in {len(boxes)} specimen(s))", "lower the resolution (mi-nest export --resolution)")
+    grids = []
+    for shape, (lo, hi, counts) in zip(shapes, boxes):
         nodes = grid_nodes(lo, hi, counts)
-        values = medium.sample(nodes) if field is None else sample(field, nodes)
+        values = shape.interior_medium().sample(nodes) if field is None else sample(field, nodes)
         grids.append(StressGrid(values.reshape(counts[2], counts[1], counts[0], 6), lo, hi))
     return grids
 

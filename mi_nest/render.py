@@ -15,7 +15,7 @@ from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
-from .scene import SceneError, photoelastic_integrator
+from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor
 from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -82,9 +82,10 @@ class RenderResult:
             print(f"wrote {Path(png).resolve()}")
 
 
-def render(scene: mi.Scene, spp: int | None = None, seed: int = 0, passes: int | None = None, progress: bool = False,
-           field: StressField | None = None) -> RenderResult:
-    """Render ``scene`` (a loaded scene) and return its named channels.
+def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, passes: int | None = None,
+           progress: bool = False, field: StressField | None = None) -> RenderResult:
+    """Render ``scene`` (a loaded scene, or a scene file or shipped scene name, loaded with its defaults) and
+    return its named channels.
 
     The samples are split into ``passes`` kernel launches of equal size (default:
     up to 16) so that ``progress=True`` can show a bar; every pass uses its own seed
@@ -92,7 +93,16 @@ def render(scene: mi.Scene, spp: int | None = None, seed: int = 0, passes: int |
     if given, is rendered in every specimen instead of its own stress (a
     reconstruction's field).
     """
-    sensor = scene.sensors()[0]
+    if isinstance(scene, (str, Path)):
+        scene = load_scene(scene)
+    if not isinstance(scene, mi.Scene):
+        raise TypeError(f"'scene' must be a scene (mi_nest.load_scene(...)) or a scene file or shipped scene name, "
+                        f"got {scene!r:.60} ({type(scene).__name__})")
+    if field is not None and not isinstance(field, StressField):
+        raise TypeError(f"'field' must be a StressField (a reconstruction's .field, or one of mi_nest.fields) to "
+                        f"render in every specimen, or None for their own stress; got {field!r:.60} "
+                        f"({type(field).__name__})")
+    sensor = scene_sensor(scene)
     film = sensor.film()
     integrator = scene.integrator()
     spp, passes = render_plan(scene, spp, passes)
@@ -140,7 +150,7 @@ SAMPLE_STATE_BYTES = 64
 def render_plan(scene: mi.Scene, spp: int | None = None, passes: int | None = None) -> tuple[int, int]:
     """``(spp, passes)`` of a :func:`render` of ``scene``, checked: a photoelastic integrator, whole numbers,
     and an image that is not empty and fits in the memory this process may allocate."""
-    sensor = scene.sensors()[0]
+    sensor = scene_sensor(scene)
     integrator = photoelastic_integrator(scene)
     spp = whole_number("spp", sensor.sampler().sample_count() if spp is None else spp)
     if passes is None:
@@ -160,12 +170,19 @@ def _check_image_size(film, channels, samples_per_pass, passes):
                          "(the shipped scenes' $res)")
     pixels = width * height
     images = 1 if passes == 1 else 3        # a single pass's image is the result; more passes add a sum
-    needed = pixels * channels * 4 * images + pixels * samples_per_pass * (channels * 4 + SAMPLE_STATE_BYTES)
+    require_memory(pixels * channels * 4 * images + pixels * samples_per_pass * (channels * 4 + SAMPLE_STATE_BYTES),
+                   f"a {width}x{height} render of {channels} channels at {samples_per_pass} sample(s) per pixel per "
+                   "pass", "lower the resolution or the samples per pixel (spp)")
+
+
+def require_memory(needed: float, work: str, smaller: str) -> None:
+    """Refuse ``work`` (what needs the memory, for the message) when its ``needed`` bytes exceed what this
+    process may allocate, before it starts; ``smaller`` says how to make it smaller. Renders, exports, slices
+    and training batches are refused so."""
     available = available_memory()
     if available is not None and needed > available:
-        raise SceneError(f"a {width}x{height} render of {channels} channels at {samples_per_pass} sample(s) per "
-                         f"pixel per pass needs about {needed / 2**30:.3g} GiB; {available / 2**30:.3g} GiB are "
-                         "available: lower the resolution or the samples per pixel (spp)")
+        raise ValueError(f"{work} needs about {needed / 2**30:.3g} GiB; {available / 2**30:.3g} GiB are available: "
+                         f"{smaller}")
 
 
 def available_memory() -> int | None:

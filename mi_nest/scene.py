@@ -8,6 +8,9 @@ time, never kept from an earlier import.
 from __future__ import annotations
 
 import argparse
+import os
+import stat
+from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -37,15 +40,29 @@ def scene_path(name: str) -> Path:
 
 
 def scene_file(path: str | Path) -> Path:
-    """The scene XML a path or shipped scene name stands for."""
+    """The scene XML a path or shipped scene name stands for: a file this process may read."""
     path = Path(path)
-    # A bare name is a shipped scene unless a file of that name is here (a folder named like it, such as
-    # the output directory of `mi-nest simulate kitten -o kitten`, is not a scene).
-    if not path.is_file() and len(path.parts) == 1:
+    # A bare name is a shipped scene unless something other than a folder has that name here (a folder named
+    # like it, such as the output directory of `mi-nest simulate kitten -o kitten`, is not a scene).
+    if len(path.parts) == 1 and (path.is_dir() or not path.exists()):
         path = scene_path(path.name)
-    if not path.is_file():
+    if not path.exists():
         raise SceneError(f"scene file not found: {path}")
+    if not path.is_file():
+        raise SceneError(f"{path} is {_special_file_kind(path)}, not a scene file; give a scene XML file")
+    if not os.access(path, os.R_OK):
+        raise SceneError(f"{path}: permission denied: this user may not read the scene file; check its permissions")
     return path.resolve()
+
+
+# What a path that is not a regular file is, by the test of its mode.
+_SPECIAL_FILES = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket"),
+                  (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+
+
+def _special_file_kind(path):
+    mode = path.stat().st_mode
+    return next((kind for test, kind in _SPECIAL_FILES if test(mode)), "not a regular file")
 
 
 def parse_define(text: str) -> tuple[str, str]:
@@ -89,24 +106,47 @@ def scene_origin(scene: mi.Scene) -> tuple[Path, dict] | None:
     return origin[1], dict(origin[2])
 
 
+def scene_inputs(path: str | Path, **defaults) -> list[Path]:
+    """The files that loading the scene ``path`` with ``defaults`` reads: the scene file, the files it includes
+    and those its plugins name (meshes, stress files), resolved as loading resolves them. What an output must
+    not overwrite, and what a dataset's record of its scene's content covers."""
+    path = scene_file(path)
+    config = mi.parser.ParserConfig(mi.variant())
+    with _resolving_beside(path) as resolver:
+        try:
+            state = mi.parser.parse_file(config, str(path), **{k: str(v) for k, v in defaults.items()})
+        except Exception as error:
+            raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
+        named = [resolver.resolve(str(node.props["filename"])) for node in state.nodes if "filename" in node.props]
+    files = [Path(str(name)) for name in [*state.files, *named]]
+    return list(dict.fromkeys(file.resolve() for file in files if file.is_file()))
+
+
+@contextmanager
+def _resolving_beside(path):
+    """Relative file names resolve beside the scene ``path`` inside, as ``mi.load_file`` resolves them."""
+    previous = mi.file_resolver()
+    resolver = mi.FileResolver(previous)
+    resolver.prepend(str(path.parent))
+    mi.set_file_resolver(resolver)
+    try:
+        yield resolver
+    finally:
+        mi.set_file_resolver(previous)
+
+
 def _load_robust(path, defaults):
     """``mi.load_file`` with the scene's ``embree_use_robust_intersections`` set."""
     config = mi.parser.ParserConfig(mi.variant())
     # Serial loading: Mitsuba's parallel loader runs plugin constructors on worker threads
     # with small stacks, which has crashed NumPy/SciPy code in them; scenes here are small.
     config.parallel = False
-    previous = mi.file_resolver()
-    resolver = mi.FileResolver(previous)
-    resolver.prepend(str(path.parent))     # relative file names resolve beside the scene, as mi.load_file does
-    mi.set_file_resolver(resolver)
-    try:
+    with _resolving_beside(path):
         state = mi.parser.parse_file(config, str(path), **defaults)
         if state.root.type == mi.ObjectType.Scene:
             state.root.props["embree_use_robust_intersections"] = True
         mi.parser.transform_all(config, state)
         return mi.parser.instantiate(config, state)
-    finally:
-        mi.set_file_resolver(previous)
 
 
 def _without_traceback(message):
@@ -126,10 +166,19 @@ def photoelastic_integrator(scene: mi.Scene) -> PhotoelasticIntegrator:
     return integrator
 
 
+def scene_sensor(scene: mi.Scene) -> mi.Sensor:
+    """The scene's first sensor, the one mi_nest renders with; a scene without one is refused."""
+    sensors = scene.sensors()
+    if not sensors:
+        raise SceneError(f'{scene.id() or "the scene"} has no sensor: add a <sensor type="polariscope"> (the camera '
+                         "and the polariscope's analysing side) to it")
+    return sensors[0]
+
+
 def polariscope_camera(scene: mi.Scene) -> PolariscopeCamera:
     """The scene's ``polariscope`` sensor (its first); any other is refused."""
     from .plugins import polariscope
-    sensor = scene.sensors()[0]
+    sensor = scene_sensor(scene)
     if not isinstance(sensor, polariscope.PolariscopeCamera):
         raise SceneError(f'the scene needs <sensor type="polariscope">, it has {sensor.class_name()}')
     return sensor

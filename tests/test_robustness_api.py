@@ -85,7 +85,8 @@ def test_export_finds_a_shipped_stress_file_from_anywhere(tmp_path, monkeypatch,
 def test_command_line_users_are_told_about_restart_not_resume_false(tiny_dataset, tmp_path, capsys):
     """Item 6: the checkpoint of another run told CLI users to 'pass resume=False'; they are told --restart."""
     output = tmp_path / "result"
-    arguments = ["reconstruct", str(tiny_dataset), "-o", str(output), "--option", "batch_size=64", "--resolution", "6",
+    arguments = ["reconstruct", str(tiny_dataset), "--allow-aliased",
+                 "-o", str(output), "--option", "batch_size=64", "--resolution", "6",
                  "--no-progress"]
     assert main(arguments + ["--iterations", "2"]) == 0
     capsys.readouterr()

@@ -189,7 +189,8 @@ def test_a_runaway_fit_is_divergence(tiny_dataset, tmp_path, capsys):
     """Reconstruct: learning rate 1e6 reported a 9e8 % error with exit code 0; a field that runs away
     beyond what the images could resolve stops the run, keeps the last good checkpoint, exits 2."""
     output = tmp_path / "run"
-    assert main(["reconstruct", str(tiny_dataset), "-o", str(output), "--option", "learning_rate=1e6", "--iterations",
+    assert main(["reconstruct", str(tiny_dataset), "--allow-aliased",
+                 "-o", str(output), "--option", "learning_rate=1e6", "--iterations",
                  "20", "--option", "batch_size=64", "--resolution", "6", "--no-progress"]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "optimisation diverged at iteration 20: the field ran away to " in error
@@ -221,7 +222,8 @@ def test_all_zero_measurements_are_refused(tiny_dataset, tmp_path, capsys):
     copy = copy_of(tiny_dataset, tmp_path)
     for position in range(4):
         rewrite_rotation(copy, position, lambda channels: [channels[n].fill(0.0) for n in fmt.CHANNELS])
-    assert main(["reconstruct", str(copy), "-o", str(tmp_path / "run"), "--iterations", "3", "--no-progress"]) == 2
+    assert main(["reconstruct", str(copy), "--allow-aliased",
+                 "-o", str(tmp_path / "run"), "--iterations", "3", "--no-progress"]) == 2
     assert "0000.exr: every measurement is zero (no light reached the camera" in capsys.readouterr().err
 
 

@@ -95,7 +95,8 @@ def test_a_second_writer_is_refused_while_another_process_holds_the_directory(ti
         with pytest.raises(DirectoryInUseError, match=rf"{busy} is in use by another run \(PID {holder.pid} "):
             simulate("disk_compression", busy, TINY, progress=False, defines=GENTLE)
         for command in (["simulate", "disk_compression", "-o", busy, "--azimuth", "2", "--elevation", "2"],
-                        ["reconstruct", tiny_dataset, "-o", busy, "--iterations", "2", "--no-progress"],
+                        ["reconstruct", tiny_dataset, "--allow-aliased",
+                         "-o", busy, "--iterations", "2", "--no-progress"],
                         ["acquire", _rig(tmp_path), "-o", busy, "--yes", "--quiet", "--unverified-handedness"]):
             assert main(list(map(str, command))) == 2
             err = capsys.readouterr().err
@@ -150,7 +151,8 @@ def test_ctrl_c_in_reconstruct_writes_the_checkpoint_it_names(tiny_dataset, tmp_
     Before, about one Ctrl-C in six landed inside a Dr.Jit loop: a RuntimeError traceback and no checkpoint.
     """
     output = tmp_path / "result"
-    code, err, seconds = _interrupt(["reconstruct", tiny_dataset, "-o", output, "--iterations", "1000000",
+    code, err, seconds = _interrupt(["reconstruct", tiny_dataset, "--allow-aliased",
+                                     "-o", output, "--iterations", "1000000",
                                      "--option", "batch_size=64", "--resolution", "6", "--no-progress"],
                                     lambda _: (output / "checkpoint.npz").is_file(), delay)
     messages = _messages(err)
@@ -279,7 +281,8 @@ def test_temporary_files_of_a_killed_writer_are_removed_by_the_next_write(tmp_pa
 def test_a_corrupt_checkpoint_gets_one_line_naming_restart(tiny_dataset, tmp_path, capsys, damage):
     """Item 5 (corrupt files): a damaged checkpoint was a BadZipFile traceback; now one line naming --restart."""
     output = tmp_path / "result"
-    arguments = ["reconstruct", str(tiny_dataset), "-o", str(output), "--iterations", "2", "--option", "batch_size=64",
+    arguments = ["reconstruct", str(tiny_dataset), "--allow-aliased",
+                 "-o", str(output), "--iterations", "2", "--option", "batch_size=64",
                  "--resolution", "6", "--no-progress"]
     assert main(arguments) == 0
     checkpoint = output / "checkpoint.npz"

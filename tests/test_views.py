@@ -24,7 +24,8 @@ def result(tmp_path_factory):
     root = tmp_path_factory.mktemp("views")
     with pytest.warns(RuntimeWarning):
         simulate("disk_compression", root / "data", SETTINGS, progress=False, defines={"load": 200})
-    assert main(["reconstruct", str(root / "data"), "-o", str(root / "result"), "--iterations", "3", "--option",
+    assert main(["reconstruct", str(root / "data"), "--allow-aliased",
+                 "-o", str(root / "result"), "--iterations", "3", "--option",
                  "batch_size=64", "--resolution", "6", "--kind", "grid", "--no-progress"]) == 0
     return root
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -78,9 +79,27 @@ def read_index(directory: str | Path) -> dict:
     missing = [k for k in ("resolution", "rotations", "channels", "wavelength", "complete") if k not in index]
     if missing:
         raise DatasetError(f"{path}: corrupt: missing {missing}")
+    channels = index["channels"]
+    if not isinstance(channels, list) or sorted(map(str, channels)) != sorted(CHANNELS):
+        listed = Counter(map(str, channels)) if isinstance(channels, list) else Counter()
+        absent = [name for name in CHANNELS if name not in listed]
+        foreign = [name for name in listed if name not in CHANNELS]
+        repeated = [name for name, count in listed.items() if count > 1]
+        wrong = [text for names, text in ((absent, f"without {absent}"), (foreign, f"{foreign} besides"),
+                                          (repeated, f"{repeated} more than once")) if names]
+        raise DatasetError(f"{path}: corrupt: 'channels' must list each of the {len(CHANNELS)} measurements "
+                           f"(pol.<b1>.<b2>.<a2>) once; it lists {sum(listed.values())}, {', '.join(wrong)}: put "
+                           "the dataset's own dataset.json back, or simulate or acquire it again")
     for rotation in index["rotations"]:
         if not {"index", "azimuth", "elevation", "file", "split", "to_world"} <= set(rotation):
             raise DatasetError(f"{path}: corrupt rotation entry {rotation}")
+    for key, what in (("index", "rotation"), ("file", "rotation file")):
+        counts = Counter(str(rotation[key]) for rotation in index["rotations"])
+        repeated = [value for value, count in counts.items() if count > 1]
+        if repeated:
+            raise DatasetError(f"{path}: {what} {repeated[0]} is listed {counts[repeated[0]]} times (a dataset "
+                               "lists each rotation once; an edited or merged dataset.json?): put the dataset's own "
+                               "dataset.json back, or simulate or acquire it again")
     return index
 
 
@@ -91,11 +110,38 @@ POSE_KEY, SETTINGS_KEY = "mi_nest.to_world", "mi_nest.settings"
 HEADER_TOLERANCE = 1e-6
 
 
+def file_digests(files: Iterable[str | Path]) -> dict[str, str]:
+    """``{path: short SHA-256 of its bytes}``: what a simulation's scene files held (``source.scene_content``)."""
+    digests = {}
+    for file in files:
+        digest = hashlib.sha256()
+        with open(file, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+        digests[str(file)] = digest.hexdigest()[:16]
+    return digests
+
+
+def content_fingerprint(directory: str | Path, index: dict) -> str:
+    """A short hash of a dataset as it stands: its index and each rotation file's size and modification time.
+    A dataset replaced or rewritten gets another; reading it leaves it as it is."""
+    digest = hashlib.sha256(json.dumps(index, sort_keys=True, default=plain).encode())
+    for entry in index["rotations"]:
+        try:
+            stat = (Path(directory) / entry["file"]).stat()
+            digest.update(f"{entry['file']} {stat.st_size} {stat.st_mtime_ns}\n".encode())
+        except FileNotFoundError:
+            digest.update(f"{entry['file']} missing\n".encode())
+    return digest.hexdigest()[:16]
+
+
 def settings_fingerprint(index: dict) -> str:
     """A short hash of what every rotation file of a dataset shares: camera, sampling, polariscope, source."""
     source = index.get("source") or {}
     shared = {key: index.get(key) for key in ("resolution", "spp", "camera_model", "polariscope")}
     shared["source"] = {key: source.get(key) for key in ("kind", "scene", "defines")}
+    if "scene_content" in source:       # datasets simulated before it was recorded keep their fingerprint
+        shared["source"]["scene_content"] = source["scene_content"]
     return hashlib.sha256(json.dumps(shared, sort_keys=True, default=plain).encode()).hexdigest()[:16]
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import queue
+import shutil
 import threading
 import time
 import warnings
@@ -26,9 +27,9 @@ from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from ..render import render, render_plan
+from ..render import available_memory, render, render_plan
 from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
-                     scene_file, specimen_bounds, specimen_media, specimen_shapes)
+                     scene_file, scene_inputs, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
 from . import format as fmt
 from .camera import CameraModel
@@ -69,6 +70,35 @@ class SimulationReport:
                 f"{self.wall_seconds:.2f} s; render {self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
                 f"and writing {self.write_seconds:.2f} s ({self.write_seconds / per * 1e3:.1f} ms each) beside "
                 f"them; DoLP mask against the exact occupancy: mean IoU {self.mask_iou:.3f}")
+
+
+# Memory one rotation takes in a dataset's index: 4.4 kB measured at the peak of writing dataset.json, doubled for
+# the index read back when a run resumes.
+INDEX_BYTES_PER_ROTATION = 8 * 1024
+
+
+def _require_room(settings, resolution, output):
+    """Refuse a dataset whose index would not fit in memory, or whose rotation files (uncompressed, the most ZIP
+    can leave) would not fit on the disk of ``output``; before the rotations are listed, which alone can
+    exhaust memory."""
+    rotations = settings.azimuths * settings.elevations
+    count = f"{rotations} rotations ({settings.azimuths} azimuths x {settings.elevations} elevations)"
+    available = available_memory()
+    if available is not None and rotations * INDEX_BYTES_PER_ROTATION > available:
+        raise fmt.DatasetError(f"a dataset of {count} needs about {rotations * INDEX_BYTES_PER_ROTATION / 2**30:.3g} "
+                               f"GiB of memory for its index alone; {available / 2**30:.3g} GiB are available: "
+                               "simulate fewer rotations (--azimuth, --elevation)")
+    width, height = resolution
+    channel_bytes = 2 if settings.half else 4
+    per_rotation = width * height * (len(fmt.CHANNELS) + len(fmt.MASK_CHANNELS)) * channel_bytes
+    written = sum(file.stat().st_size for file in (output / "rotations").glob("*.exr"))
+    free = shutil.disk_usage(output).free
+    if rotations * per_rotation - written > free:
+        raise fmt.DatasetError(f"a dataset of {count} of {width}x{height} pixels needs up to "
+                               f"{(rotations * per_rotation - written) / 2**30:.3g} GiB more on disk "
+                               f"({per_rotation / 2**20:.3g} MiB per rotation file before compression); "
+                               f"{free / 2**30:.3g} GiB are free where {output} is: simulate fewer rotations "
+                               "(--azimuth, --elevation) or a lower resolution (--res)")
 
 
 # Rendered rotations that may wait for the writers: each holds a render's channels (about 7 MB at 256 x 256).
@@ -156,7 +186,8 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
     return {
         "format": fmt.FORMAT, "version": fmt.VERSION, "complete": False,
         "software": {"mi_nest": __version__, "mitsuba": mi.__version__},
-        "source": {"kind": "simulated", "scene": str(scene_file(source)), "defines": dict(defines)},
+        "source": {"kind": "simulated", "scene": str(scene_file(source)), "defines": dict(defines),
+                   "scene_content": fmt.file_digests(scene_inputs(source, **defines))},
         "units": fmt.UNITS,
         "resolution": [int(n) for n in sensor.film().size()],
         "spp": int(settings.spp or sensor.sampler().sample_count()),
@@ -196,19 +227,22 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
     render_plan(scene, settings.spp)     # an image that cannot be rendered is refused before anything is written
+    _require_room(settings, [int(n) for n in scene.sensors()[0].film().size()], output)
     index = dataset_index(scene, scene_file, defines, settings)
     if settings.res is not None and index["resolution"] != [settings.res, settings.res]:
         raise SceneError(f"{scene_file}: --res {settings.res} had no effect (the scene's film is "
                          f"{index['resolution']}); give the film width/height as $res")
     if (output / fmt.INDEX).exists():
         previous = fmt.read_index(output)
-        differing = [k for k in fmt.IDENTITY_KEYS if previous.get(k) != json_round_trip(index[k])]
+        # The index of a run that wrote no rotation (refused or failed at its first) holds nothing to resume.
+        differing = [k for k in fmt.IDENTITY_KEYS if previous.get(k) != json_round_trip(index[k])] \
+            if _holds_rotations(output, previous) else []
+        _refuse_an_edited_scene(output, previous.get("source") or {}, index["source"], differing)
         if differing:
             raise fmt.DatasetError(f"{output} holds a dataset made with other settings ({', '.join(differing)}); "
                                    "choose a new directory or delete it")
     elif other_entries(output):
         raise fmt.DatasetError(f"{output} exists and is not an mi_nest dataset; choose an empty directory")
-    fmt.write_index(output, index)
 
     from tqdm import tqdm
     bar = tqdm(total=len(index["rotations"]), desc="simulate", unit="rotation", disable=not progress)
@@ -237,6 +271,8 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
                 pose(scene, entry["to_world"])
                 result = render(scene, spp=settings.spp)
                 render_seconds += time.perf_counter() - rendering
+                if not rendered:    # the index before the first rotation file: a render refused writes nothing
+                    fmt.write_index(output, index)
                 writer.put(output / entry["file"], result.channels, entry, result.aliasing)
                 rendered += 1
                 on_disk(writer.written())
@@ -258,6 +294,27 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     fmt.write_index(output, index)
     return SimulationReport(output, rendered, kept, render_seconds, write_seconds, float(np.mean(ious)),
                             [str(w.message) for w in caught], wall_seconds)
+
+
+def _holds_rotations(output, index):
+    """Whether any rotation file of ``index`` is in ``output``: what a rerun would resume."""
+    return any((output / entry["file"]).exists() for entry in index["rotations"])
+
+
+def _refuse_an_edited_scene(output, previous, source, differing):
+    """Refuse to resume a dataset whose scene files changed since it was started: its rotations would show
+    two scenes."""
+    same_scene = {k: v for k, v in previous.items() if k != "scene_content"} == \
+        json_round_trip({k: v for k, v in source.items() if k != "scene_content"})
+    if differing != ["source"] or not same_scene:
+        return
+    if "scene_content" not in previous:
+        raise fmt.DatasetError(f"{output} was started before mi_nest recorded the content of its scene's files, so "
+                               "a rerun cannot tell whether they changed since; choose a new directory or delete it")
+    edited = sorted(name for name in {*previous["scene_content"], *source["scene_content"]}
+                    if previous["scene_content"].get(name) != source["scene_content"].get(name))
+    raise fmt.DatasetError(f"{output} was simulated from {source['scene']} before {', '.join(edited)} changed; "
+                           "resuming would mix rotations of two scenes: choose a new directory or delete it")
 
 
 # Rotation file header keys of the render's fringe-aliasing report (simulated datasets).

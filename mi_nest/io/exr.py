@@ -1,17 +1,29 @@
 """Multichannel EXR files addressed by channel name (OpenEXR does not keep channel order)."""
 from __future__ import annotations
 
+import errno
+import os
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
-from .atomic import atomic_path
+from .atomic import OUT_OF_ROOM, atomic_path
 
 
 class ExrFileError(ValueError):
     """An EXR file is missing, unreadable or lacks a requested channel."""
+
+
+def require_exr_name(path: str | Path) -> Path:
+    """``path`` if its name ends in .exr: EXR bytes under another suffix would be taken for what it says."""
+    path = Path(path)
+    if path.suffix.lower() != ".exr":
+        raise ExrFileError(f"{path}: the image is written as OpenEXR, so its name must end in .exr (a PNG "
+                           "preview goes to --png NAME.png)")
+    return path
 
 
 def write_channels(path: str | Path, channels: dict[str, np.ndarray], metadata: dict | None = None,
@@ -20,7 +32,7 @@ def write_channels(path: str | Path, channels: dict[str, np.ndarray], metadata: 
 
     ``metadata`` values are stored as string header attributes.
     """
-    path = Path(path)
+    path = require_exr_name(path)
     if not channels:
         raise ExrFileError(f"{path}: no channels to write")
     shapes = {np.shape(a) for a in channels.values()}
@@ -32,7 +44,32 @@ def write_channels(path: str | Path, channels: dict[str, np.ndarray], metadata: 
     header.update({key: str(value) for key, value in (metadata or {}).items()})
     with atomic_path(path, ".exr") as tmp:
         with OpenEXR.File(header, pixels) as exr:
-            exr.write(tmp)
+            try:
+                exr.write(tmp)
+            except RuntimeError as error:
+                raise _write_error(path, error) from error
+        _require_readable(tmp, path)
+
+
+def _require_readable(tmp, path):
+    """Read the temporary file ``tmp`` of ``path`` back whole: OpenEXR does not report the loss of what it writes
+    as it closes the file (a small file on a full disk is left empty without a word)."""
+    try:
+        with OpenEXR.File(str(tmp), separate_channels=True):
+            pass
+    except Exception as error:  # OpenEXR raises bare RuntimeError/IOError on corrupt files
+        if shutil.disk_usage(Path(tmp).parent).free == 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)) from error
+        raise ExrFileError(f"{path}: the file written does not read back ({error})") from error
+
+
+def _write_error(path, error):
+    """What OpenEXR's RuntimeError for a failed write stands for: the ``OSError`` of a write that ran out of
+    room, whose reason it quotes (``atomic_path`` names the file and the limit), or an ``ExrFileError``."""
+    for code in OUT_OF_ROOM:
+        if os.strerror(code) in str(error):
+            return OSError(code, os.strerror(code))
+    return ExrFileError(f"{path}: cannot be written ({error})")
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:

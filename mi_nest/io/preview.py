@@ -18,10 +18,10 @@ def write_preview(path: str | Path, image: np.ndarray, vmin: float = 0.0, vmax: 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    plt.imsave(path, np.clip(np.asarray(image, dtype=np.float32), vmin, vmax), cmap="gray",
-               vmin=vmin, vmax=vmax)
+    from .atomic import atomic_path
+    with atomic_path(path, ".png") as tmp:
+        plt.imsave(tmp, np.clip(np.asarray(image, dtype=np.float32), vmin, vmax), cmap="gray", vmin=vmin, vmax=vmax,
+                   format="png")
 
 
 def write_comparison(path: str | Path, panels: list[tuple[str, np.ndarray]], title: str,

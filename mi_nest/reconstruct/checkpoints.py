@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
@@ -11,7 +12,9 @@ import mitsuba as mi
 import numpy as np
 
 from ..dataset import Dataset
+from ..dataset.format import content_fingerprint
 from ..io.atomic import atomic_path
+from ..physics.aliasing import UNRESOLVED_SHARE
 from ..render import RenderResult, render
 from .config import OptimizeConfig
 from .fields import TrainableField, field_from_state
@@ -20,6 +23,10 @@ from .forward import make_integrator
 CHECKPOINT = "checkpoint.npz"
 # What every checkpoint holds; one without them was cut short or is not a checkpoint.
 CHECKPOINT_KEYS = ("config", "dataset", "iteration", "iterates_averaged", "seconds", "history", "rng", "path_range")
+
+
+class ReconstructionFileError(ValueError):
+    """A file of a saved reconstruction (``reconstruction.json``, ``field.npz``) cannot be read."""
 
 
 class CheckpointError(ValueError):
@@ -53,7 +60,8 @@ class Checkpoint:
         state.update({"iteration": self.iteration, "iterates_averaged": self.iterates_averaged,
                       "seconds": self.seconds, "history": json.dumps(self.history), "rng": json.dumps(self.rng),
                       "path_range": json.dumps(self.path_range), "config": json.dumps(config.to_dict()),
-                      "dataset": str(dataset.directory.resolve())})
+                      "dataset": str(dataset.directory.resolve()),
+                      "dataset_content": content_fingerprint(dataset.directory, dataset.index)})
         with atomic_path(path, ".npz") as tmp:
             _save_npz(tmp, state)
 
@@ -62,10 +70,10 @@ class Checkpoint:
         """The checkpoint at ``path``; :class:`CheckpointError` if it is unreadable, cut short, or of a run
         with another ``config`` or ``dataset``."""
         state = _read_whole(path)
-        if OptimizeConfig.from_dict(json.loads(str(state["config"]))).to_dict() != config.to_dict() or \
-                str(state["dataset"]) != str(dataset.directory.resolve()):
-            raise CheckpointError(f"{path} is a checkpoint of another run (other options or dataset); choose "
-                                  "another output directory")
+        other = _other_run(state, config, dataset)
+        if other is not None:
+            raise CheckpointError(f"{path} is a checkpoint of another run ({other}); choose another output "
+                                  "directory")
         field_state = {k[len("field."):]: v for k, v in state.items() if k.startswith("field.")}
         field_state["config"] = json.loads(str(field_state["config"]))
         stress_field = field_from_state(field_state)
@@ -74,6 +82,18 @@ class Checkpoint:
         return cls(stress_field, adam, averages, int(state["iterates_averaged"]), int(state["iteration"]),
                    float(state["seconds"]), json.loads(str(state["history"])), json.loads(str(state["rng"])),
                    json.loads(str(state["path_range"])))
+
+
+def _other_run(state, config, dataset):
+    """How the run of a checkpoint's ``state`` differs from one with ``config`` on ``dataset``; None if not."""
+    if OptimizeConfig.from_dict(json.loads(str(state["config"]))).to_dict() != config.to_dict():
+        return "other options"
+    if str(state["dataset"]) != str(dataset.directory.resolve()):
+        return f"another dataset, {state['dataset']}"
+    # Checkpoints from before the content was recorded have none: their dataset may have been replaced too.
+    if str(state.get("dataset_content")) != content_fingerprint(dataset.directory, dataset.index):
+        return f"the dataset at {state['dataset']} as it was before it was replaced or changed"
+    return None
 
 
 def _read_whole(path):
@@ -138,6 +158,10 @@ class Reconstruction:
             floor_text = "" if floor is None else f" (the best any grid of this size can score: {100 * floor:.2f}%)"
             lines.append(f"relative deviatoric stress error {100 * self.metrics['deviatoric_error']:.2f}%{floor_text}, "
                          f"principal stress difference error {100 * self.metrics['principal_difference_error']:.2f}%")
+        if self.metrics.get("aliased_share", 0.0) > UNRESOLVED_SHARE:
+            lines.append(f"UNRELIABLE: the dataset's fringes are denser than the pixels in "
+                         f"{100 * self.metrics['aliased_share']:.0f}% of the specimen's pixels (over "
+                         f"{100 * UNRESOLVED_SHARE:.0f}% loses the phase): expect large errors")
         if "test_psnr" in self.metrics:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")
@@ -163,9 +187,13 @@ class Reconstruction:
         for name in ("field.npz", "reconstruction.json"):
             if not (directory / name).is_file():
                 raise FileNotFoundError(f"{directory} is not a reconstruction: {name} missing")
-        record = json.loads((directory / "reconstruction.json").read_text())
-        return cls(load_field(directory / "field.npz"), OptimizeConfig.from_dict(record["config"]),
-                   record["history"], record["metrics"], record["seconds"], record.get("source", {}))
+        with _damaged_file(directory / "reconstruction.json"):
+            record = json.loads((directory / "reconstruction.json").read_text())
+            config = OptimizeConfig.from_dict(record["config"])
+            history, metrics, seconds = record["history"], record["metrics"], record["seconds"]
+        with _damaged_file(directory / "field.npz"):
+            stress_field = load_field(directory / "field.npz")
+        return cls(stress_field, config, history, metrics, seconds, record.get("source", {}))
 
     def integrator(self, scene: mi.Scene) -> mi.Integrator:
         """The integrator this reconstruction renders ``scene`` with."""
@@ -174,6 +202,18 @@ class Reconstruction:
     def render(self, scene: mi.Scene, **options) -> RenderResult:
         """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""
         return render(scene, field=self.field, **options)
+
+
+@contextmanager
+def _damaged_file(path):
+    """A saved reconstruction's ``path`` that cannot be read (cut short, edited, another program's) as a
+    :class:`ReconstructionFileError` naming it."""
+    try:
+        yield
+    except (ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as error:
+        reason = f"no {error}" if isinstance(error, KeyError) else str(error)
+        raise ReconstructionFileError(f"{path} is damaged and cannot be read ({reason}); restore it from a copy, or "
+                                      "run the mi-nest reconstruct command that wrote it again") from error
 
 
 def load_field(path: str | Path) -> TrainableField:

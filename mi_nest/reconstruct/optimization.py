@@ -85,6 +85,9 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         result = run.result()
         result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth,
                                        config.reporting.evaluate_views, config.optimiser.mask, shapes))
+        aliasing = dataset.index.get("fringe_aliasing")
+        if aliasing:
+            result.metrics["aliased_share"] = aliasing["mean_fraction"]
         if output is not None:
             result.save(output)
     return result

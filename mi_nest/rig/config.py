@@ -9,6 +9,7 @@ missing keys are errors that name the section and the key.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from urllib.parse import urlsplit
@@ -165,9 +166,36 @@ def _take(table, where, required=(), optional=()):
     return table
 
 
+def _number(where, key, value, least=None, above=None):
+    """``[where] key`` as a float: a finite number (TOML has nan and inf), at least ``least`` or above ``above``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
+            (least is not None and value < least) or (above is not None and value <= above):
+        bound = f" >= {least:g}" if least is not None else f" > {above:g}" if above is not None else ""
+        raise RigConfigError(f"[{where}] {key} must be a finite number{bound}, got {value!r}")
+    return float(value)
+
+
+def _whole(where, key, value, least=0):
+    """``[where] key``: an integer (not a float, not a bool) of at least ``least``."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise RigConfigError(f"[{where}] {key} must be an integer, got {value!r}")
+    if value < least:
+        raise RigConfigError(f"[{where}] {key} must be an integer >= {least}, got {value!r}")
+    return value
+
+
 def _dataclass_options(default, table, where):
-    """``default`` (a dataclass instance) with the values of ``table`` in place of its own."""
+    """``default`` (a dataclass instance) with the values of ``table`` in place of its own: integers where it
+    has integers, finite numbers where it has numbers (or None); true or false is the dataclass's to check."""
     _take(table, where, optional=[f.name for f in fields(default)])
+    for key, value in table.items():
+        own = getattr(default, key)
+        if isinstance(own, bool):
+            continue
+        if isinstance(own, int):
+            _whole(where, key, value)
+        elif isinstance(own, float) or (own is None and isinstance(value, (int, float))):
+            _number(where, key, value)
     try:
         return replace(default, **table)
     except (TypeError, ValueError) as error:
@@ -193,7 +221,7 @@ def _camera(table):
         raise RigConfigError(f"[camera.defines] must be a table of the scene's $NAME values, got {table['defines']!r}")
     return TwinCamera(scene=str(table["scene"]), defines=dict(table.get("defines", {})),
                       resolution=resolution, supersample=table.get("supersample", 2), spp=table.get("spp", 1),
-                      exposure=float(table.get("exposure", 0.05)),
+                      exposure=_number("camera", "exposure", table.get("exposure", 0.05), above=0),
                       model=_dataclass_options(CameraModel(), table.get("model", {}), "camera.model"),
                       optics=_dataclass_options(Optics(), table.get("optics", {}), "camera.optics"))
 
@@ -204,11 +232,10 @@ def _genicam_camera(table):
     options = {k: v for k, v in table.items() if k != "kind"}
     if "resolution" in options:
         options["resolution"] = tuple(options["resolution"])
-    camera = GenICamCamera(**options)
-    if not camera.white_level > 0 or not camera.exposure > 0:
-        raise RigConfigError(f"[camera] white_level and exposure must be positive, got {camera.white_level}, "
-                             f"{camera.exposure}")
-    return camera
+    for key in ("exposure", "white_level"):
+        if key in options:
+            options[key] = _number("camera", key, options[key], above=0)
+    return GenICamCamera(**options)
 
 
 def parse(data: dict, source: str | Path | None = None) -> RigConfig:
@@ -217,6 +244,8 @@ def parse(data: dict, source: str | Path | None = None) -> RigConfig:
           optional=("schedule", "timing", "qwp1", "acquisition", "calibration", "handedness"))
     devices = _take(data["devices"], "devices", required=("azimuth", "elevation", "qwp2"),
                     optional=("azimuth_channel", "elevation_channel", "qwp2_address"))
+    for key in ("azimuth_channel", "elevation_channel"):
+        _whole("devices", key, devices.get(key, 1), least=1)
     devices = Devices(**devices)
     camera = _camera(data["camera"])
     if camera.kind == "twin" and not devices.simulated:
@@ -229,8 +258,9 @@ def parse(data: dict, source: str | Path | None = None) -> RigConfig:
     except ValueError as error:
         raise RigConfigError(f"[schedule]: {error}") from error
     timing = _dataclass_options(Timing(), data.get("timing", {}), "timing")
-    if min(asdict(timing).values()) < 0 or timing.stage_speed <= 0 or timing.qwp2_seconds_per_turn <= 0:
-        raise RigConfigError(f"[timing]: times must be >= 0 and speeds > 0, got {asdict(timing)}")
+    for key, value in asdict(timing).items():
+        speed = key in ("stage_speed", "qwp2_seconds_per_turn")
+        _number("timing", key, value, least=None if speed else 0, above=0 if speed else None)
     qwp1 = _take(data.get("qwp1", {}), "qwp1", optional=("mode",))
     mode = qwp1.get("mode", "manual")
     if mode not in QWP1_MODES:
@@ -245,8 +275,12 @@ def parse(data: dict, source: str | Path | None = None) -> RigConfig:
         calibration = Path(calibration)
         if source is not None and not calibration.is_absolute():
             calibration = Path(source).parent / calibration
-    return RigConfig(devices, camera, schedule, timing, mode, retries, float(acquisition.get("retry_wait", 2.0)),
-                     float(acquisition.get("dolp_threshold", 0.95)), calibration,
+    retry_wait = _number("acquisition", "retry_wait", acquisition.get("retry_wait", 2.0), least=0)
+    dolp_threshold = _number("acquisition", "dolp_threshold", acquisition.get("dolp_threshold", 0.95), above=0)
+    if dolp_threshold > 1:
+        raise RigConfigError(f"[acquisition] dolp_threshold is a degree of linear polarisation, at most 1, got "
+                             f"{dolp_threshold:g}")
+    return RigConfig(devices, camera, schedule, timing, mode, retries, retry_wait, dolp_threshold, calibration,
                      None if source is None else Path(source), _known_specimen(data.get("handedness", {})))
 
 
