@@ -1,5 +1,6 @@
 """The viewer in a real browser: Debian's headless Chromium driven by Playwright loads the page, drags the view
-and moves a slider; the frame it shows changes and equals a direct render of the same pose within 8-bit rounding.
+and moves a slider; the frame the 3D view draws changes and equals a direct render of the same pose within 8-bit
+rounding; each tab keeps its own controls.
 """
 import http.client
 import os
@@ -12,6 +13,7 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
+from mi_nest.inside.page_probe import PAGE_PROBE
 from mi_nest.inside.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
 from mi_nest.physics.polariscope import polariscope_setting
 from mi_nest.scene import photoelastic_integrator, pose
@@ -54,16 +56,14 @@ def _direct(frame):
 
 
 def _shown(page):
-    """The PNG that the page's frame image shows, decoded (grey levels); None if the page replaced the image
-    while it was read (its old blob URL is revoked)."""
-    from playwright.sync_api import Error
-    try:
-        source = page.locator("img[src^='blob:']").first.get_attribute("src")
-        data = page.evaluate("async (src) => Array.from(new Uint8Array(await (await fetch(src)).arrayBuffer()))",
-                             source)
-    except Error:
+    """The frame the page's 3D view drew last (its centre square of the frame's size, without the padding to the
+    view's aspect), decoded to grey levels; None before the first, or while the camera moves (JPEG previews)."""
+    data = page.evaluate("window.__lastFrame && Array.from(window.__lastFrame)")
+    if not data or bytes(data[:4]) != b"\x89PNG":
         return None
-    return iio.imread(bytes(data), extension=".png")[..., 0].astype(int)
+    image = iio.imread(bytes(data), extension=".png")[..., 0].astype(int)
+    top, left = (image.shape[0] - RESOLUTION) // 2, (image.shape[1] - RESOLUTION) // 2
+    return image[top:top + RESOLUTION, left:left + RESOLUTION]
 
 
 def _wait_until_shown(page, viewer, condition, seconds=90.0):
@@ -101,6 +101,7 @@ def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
         browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
         try:
             page = browser.new_page(viewport={"width": 1100, "height": 800})
+            page.add_init_script(PAGE_PROBE)
             page.goto(viewer.url)
             _wait_for_new_frame(page, None)
             first, _ = _wait_until_shown(page, viewer, lambda frame: True)
@@ -200,3 +201,55 @@ def test_mi_nest_view_serves_until_ctrl_c_and_then_stops_cleanly():
         process.kill()
     assert process.returncode == 0, err
     assert "mi-nest view: stopped" in out and "Traceback" not in err
+
+
+def test_each_tab_keeps_its_own_controls_and_frames(viewer):
+    sync_api = _browser_or_skip()
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
+        try:
+            pages = [browser.new_page(viewport={"width": 1100, "height": 800}) for _ in range(2)]
+            for page in pages:
+                page.add_init_script(PAGE_PROBE)
+                page.goto(viewer.url)
+                _wait_for_new_frame(page, None)
+            first, second = pages
+            before = _wait_until_shown(second, viewer, lambda frame: True)[0]
+            slider = first.get_by_role("slider").nth(_slider_index(first, "load scale"))
+            track = slider.locator("xpath=ancestor::div[contains(@class, 'mantine-Slider-root')][1]").bounding_box()
+            first.mouse.click(track["x"] + 0.9 * track["width"], track["y"] + 0.5 * track["height"])
+            _wait_until_shown(first, viewer, lambda frame: frame.state.load_scale > 2.0)
+            time.sleep(0.5)
+            # The other tab's slider and frame are as they were.
+            values = [page.locator("input").evaluate_all("(inputs) => inputs.map(i => i.value)") for page in pages]
+            assert "1" in values[1] and "1" not in values[0]
+            np.testing.assert_array_equal(_shown(second), before)
+        finally:
+            browser.close()
+
+
+def test_the_first_view_fits_the_whole_part():
+    """The kitten opened with its ears cut off: the fitted camera's frame holds every pixel of the part inside its
+    border."""
+    frames = FrameRenderer("kitten", {}, 64, 32)
+    position, look_at, _ = frames.fitted_camera()
+    camera = frames.pose_of_camera(_looking(look_at - position, frames.reference[:3, 1]), look_at,
+                                   float(np.linalg.norm(position - look_at)))
+    scene = frames.sources[64].scene
+    pose(scene, camera)
+    with pytest.warns(RuntimeWarning):      # 64 px: the kitten's fringes alias
+        length = mi_nest.render(scene, spp=1).channels["path.length"]
+    border = np.concatenate([length[0], length[-1], length[:, 0], length[:, -1]])
+    assert (length > 0).mean() > 0.25 and not border.any()
+
+
+def _looking(forward, up):
+    """The viewer camera's orientation (wxyz; OpenCV axes: x right, y down, z forward) looking along ``forward``."""
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    matrix = np.stack([right, down, forward], axis=1)
+    w = np.sqrt(max(1e-12, 1 + np.trace(matrix))) / 2
+    return np.array([w, (matrix[2, 1] - matrix[1, 2]) / (4 * w), (matrix[0, 2] - matrix[2, 0]) / (4 * w),
+                     (matrix[1, 0] - matrix[0, 1]) / (4 * w)])

@@ -11,6 +11,9 @@ single thread.
 """
 from __future__ import annotations
 
+import errno
+import functools
+import socket
 import threading
 import time
 import warnings
@@ -105,6 +108,19 @@ class FrameRenderer:
         up = self.reference[:3, 1] / np.linalg.norm(self.reference[:3, 1])
         return self.center - forward * self.reference_distance(), self.center, up
 
+    def fitted_camera(self, margin: float = 1.1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(position, look_at, up)`` of a viewer camera looking as the scene's camera does, zoomed so that the
+        whole part fits in the frame with ``margin``."""
+        position, look_at, up = self.reference_camera()
+        right = self.reference[:3, 0] / np.linalg.norm(self.reference[:3, 0])
+        low, high = self.bounds
+        corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1])
+                            for z in (low[2], high[2])]) - self.center
+        half_width, half_height = np.abs(corners @ right).max(), np.abs(corners @ up).max()
+        scale = np.linalg.norm(self.reference[:3, :3], axis=0)
+        zoom = margin * max(half_width / scale[0], half_height / scale[1])
+        return look_at + (position - look_at) * zoom, look_at, up
+
     def render(self, state: ViewState, to_world: np.ndarray, resolution: int) -> Frame:
         """The frame of ``state`` seen from ``to_world`` (part mode) at ``resolution``."""
         start = time.perf_counter()
@@ -140,41 +156,86 @@ def padded_to_aspect(rgb: np.ndarray, aspect: float, fill: int) -> np.ndarray:
     return canvas
 
 
+# The ports TCP has; viser's thread dies on another and leaves the command waiting for it.
+PORTS = range(65536)
+
+
+def require_address(host: str, port: int) -> None:
+    """Refuse a host and port viser cannot serve on: its server thread would die (a port outside TCP's) or give
+    up (a host that is not this machine's), and ``ViserServer()`` would wait for it forever."""
+    if port not in PORTS:
+        raise ValueError(f"port {port} is outside TCP's ports, {PORTS.start} to {PORTS.stop - 1} (0: any free one)")
+    try:
+        family, kind, protocol, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        with socket.socket(family, kind, protocol) as probe:
+            probe.bind(address)
+    except OSError as error:
+        # viser goes on to the next port from one that is taken or privileged.
+        if error.errno not in (errno.EADDRINUSE, errno.EACCES):
+            raise ValueError(f"cannot serve on {host}:{port} ({error.strerror or error}): give --host an address "
+                             f"of this machine ({DEFAULT_HOST}, the default, serves this machine only)") from None
+
+
+@dataclass
+class TabView:
+    """One browser tab's view: its own controls' state, its camera and what of them has been drawn."""
+    state: ViewState
+    to_world: np.ndarray
+    aspect: float = 1.0
+    version: int = 0                 # bumped by every change
+    changed_at: float = 0.0
+    camera_moving: bool = False      # the last change was the camera's: previews until it rests
+    drawn_version: int = -1
+    drawn_full: bool = False
+    status: object = None            # the tab's status line
+
+    @property
+    def settled(self) -> bool:
+        return self.drawn_version == self.version and self.drawn_full
+
+
 class Viewer:
-    """The viser server, its controls and the render thread (``start``, ``stop``)."""
+    """The viser server, each tab's controls and the render thread (``start``, ``stop``).
+
+    Every browser tab has its own controls, camera and frames (viser's per-client GUI and scene). One thread
+    renders for all of them, always the latest state of a tab, so quick inputs coalesce: a slider step renders
+    at full resolution straight away; a camera drag renders previews at the lower resolution (sent as JPEG,
+    cheaper to encode) until the camera rests, then the full frame (PNG).
+    """
 
     def __init__(self, frames: FrameRenderer, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT):
         self.frames = frames
         self.host, self.port = host, port
         low, high = frames.bounds
-        self._state = ViewState(offset=round(float(0.5 * (low[2] + high[2])), 1),
-                                thickness=max(round(float(max(high - low) / 20), 1), 0.1), wavelength=frames.wavelength)
-        self._to_world = frames.reference
-        self._aspect = 1.0
-        self._version = 0
-        self._changed_at = 0.0
+        self.initial_state = ViewState(offset=round(float(0.5 * (low[2] + high[2])), 1),
+                                       thickness=max(round(float(max(high - low) / 20), 1), 0.1),
+                                       wavelength=frames.wavelength)
+        self._tabs: dict[int, TabView] = {}
         self._lock = threading.Lock()
+        self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread = None
         self.server = None
-        self.last_frame: Frame | None = None        # the last full-resolution frame shown
+        self.last_frame: Frame | None = None        # the last full-resolution frame drawn, in any tab
         self.frames_drawn = 0
-        self._shown_version = -1                    # the version of the last full-resolution frame shown
 
     @property
     def url(self) -> str:
         return f"http://{self.host}:{self.server.get_port() if self.server else self.port}"
 
     def start(self) -> None:
+        require_address(self.host, self.port)
         import viser
         self.server = viser.ViserServer(host=self.host, port=self.port, label="mi_nest", verbose=False)
-        self._controls(self.server)
+        self.server.gui.main_panel.dock_right()       # the panel beside the view, not over the part
         self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._on_disconnect)
         self._thread = threading.Thread(target=self._loop, name="mi_nest-view-render", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=30)
         if self.server is not None:
@@ -182,94 +243,121 @@ class Viewer:
 
     @property
     def settled(self) -> bool:
-        """Whether the frame shown at full resolution is of the view as it stands (nothing left to render)."""
+        """Whether every tab shows its view as it stands at full resolution (nothing left to render)."""
         with self._lock:
-            return self._shown_version == self._version
+            return all(tab.settled for tab in self._tabs.values())
 
-    def _changed(self, **changes) -> None:
+    def _changed(self, client_id: int, camera: bool = False, **changes) -> None:
         with self._lock:
-            self._state = replace(self._state, **changes)
-            self._version += 1
-            self._changed_at = time.monotonic()
+            tab = self._tabs.get(client_id)
+            if tab is None:
+                return
+            tab.state = replace(tab.state, **changes)
+            tab.version += 1
+            tab.changed_at = time.monotonic()
+            tab.camera_moving = camera
+        self._wake.set()
 
-    def _controls(self, server) -> None:
-        gui = server.gui
-        low, high = self.frames.bounds
+    def _on_connect(self, client) -> None:
+        tab = TabView(self.initial_state, self.frames.reference)
+        with self._lock:
+            self._tabs[client.client_id] = tab
+        tab.status = self._controls(client, tab.state)
+        self._place(client)
+
+        def moved(camera):
+            distance = float(np.linalg.norm(camera.position - camera.look_at))
+            to_world = self.frames.pose_of_camera(camera.wxyz, camera.look_at, distance)
+            with self._lock:
+                # The browser also reports a camera that has not moved (a resize, a redraw): no new frame for it.
+                if np.allclose(to_world, tab.to_world, rtol=0, atol=1e-9) and camera.aspect == tab.aspect:
+                    return
+                tab.to_world, tab.aspect = to_world, camera.aspect
+                tab.version += 1
+                tab.changed_at = time.monotonic()
+                tab.camera_moving = True
+            self._wake.set()
+        client.camera.on_update(moved)
+
+    def _on_disconnect(self, client) -> None:
+        with self._lock:
+            self._tabs.pop(client.client_id, None)
+
+    def _controls(self, client, state: ViewState):
+        """The tab's controls; returns its status line."""
+        gui = client.gui
+        changed = functools.partial(self._changed, client.client_id)
+        low, high = (np.asarray(bound, dtype=np.float64) for bound in self.frames.bounds)
         low, high = np.floor(10 * low) / 10, np.ceil(10 * high) / 10       # slider ends in tenths of a mm
-        extent = float(max(high - low))
-        state = self._state
-        gui.add_markdown(f"**{self.frames.name}**: drag in the view to turn the part")
+        extent = float(round(max(high - low), 1))
+        gui.add_markdown(f"**{self.frames.name}**: drag in the view to turn the part, scroll to zoom")
         mode = gui.add_dropdown("view", MODES, initial_value=state.mode)
-        mode.on_update(lambda event: self._changed(mode=mode.value))
+        mode.on_update(lambda event: changed(mode=mode.value))
         with gui.add_folder("slice"):
             axis = gui.add_dropdown("normal", tuple(AXES), initial_value=state.axis)
-            offset = gui.add_slider("offset (mm)", min=float(low.min()), max=float(high.max()), step=0.1,
-                                    initial_value=round(state.offset, 1))
+            offset = gui.add_slider("offset (mm)", min=round(float(low.min()), 1), max=round(float(high.max()), 1),
+                                    step=0.1, initial_value=round(state.offset, 1))
             thickness = gui.add_slider("thickness (mm)", min=0.1, max=extent, step=0.1,
                                        initial_value=max(round(state.thickness, 1), 0.1))
 
             def on_axis(event):
                 index = "xyz".index(axis.value)
-                centre = float(0.5 * (low[index] + high[index]))
+                centre = round(float(0.5 * (low[index] + high[index])), 1)
                 offset.value = centre         # its own callback records it
-                self._changed(axis=axis.value, offset=centre)
+                changed(axis=axis.value, offset=centre)
             axis.on_update(on_axis)
-            offset.on_update(lambda event: self._changed(offset=float(offset.value)))
-            thickness.on_update(lambda event: self._changed(thickness=float(thickness.value)))
+            offset.on_update(lambda event: changed(offset=float(offset.value)))
+            thickness.on_update(lambda event: changed(thickness=float(thickness.value)))
         with gui.add_folder("polariscope"):
             kind = gui.add_dropdown("kind", POLARISCOPE_KINDS, initial_value=state.polariscope)
             field = gui.add_dropdown("field", POLARISCOPE_FIELDS, initial_value=state.field)
             angle = gui.add_slider("analyser angle (deg)", min=-90.0, max=90.0, step=1.0, initial_value=state.angle)
-            kind.on_update(lambda event: self._changed(polariscope=kind.value))
-            field.on_update(lambda event: self._changed(field=field.value))
-            angle.on_update(lambda event: self._changed(angle=float(angle.value)))
+            kind.on_update(lambda event: changed(polariscope=kind.value))
+            field.on_update(lambda event: changed(field=field.value))
+            angle.on_update(lambda event: changed(angle=float(angle.value)))
         with gui.add_folder("light and load"):
             load = gui.add_slider("load scale", min=0.0, max=3.0, step=0.01, initial_value=state.load_scale)
             wavelength = gui.add_slider("wavelength (nm)", min=380.0, max=780.0, step=1.0,
-                                        initial_value=float(state.wavelength))
-            load.on_update(lambda event: self._changed(load_scale=float(load.value)))
-            wavelength.on_update(lambda event: self._changed(wavelength=float(wavelength.value)))
+                                        initial_value=float(round(state.wavelength)))
+            load.on_update(lambda event: changed(load_scale=float(load.value)))
+            wavelength.on_update(lambda event: changed(wavelength=float(wavelength.value)))
         reset = gui.add_button("reset view")
-        reset.on_click(lambda event: self._reset_cameras())
-        self._status = gui.add_markdown("rendering...")
-        self._image = gui.add_image(np.zeros((8, 8, 3), dtype=np.uint8), label="frame", format="png")
-
-    def _on_connect(self, client) -> None:
-        self._place(client)
-
-        def moved(camera):
-            to_world = self.frames.pose_of_camera(camera.wxyz, camera.look_at,
-                                                  float(np.linalg.norm(camera.position - camera.look_at)))
-            with self._lock:
-                self._to_world = to_world
-                self._aspect = camera.aspect
-                self._version += 1
-                self._changed_at = time.monotonic()
-        client.camera.on_update(moved)
+        reset.on_click(lambda event: self._place(client))
+        return gui.add_markdown("rendering...")
 
     def _place(self, client) -> None:
-        position, look_at, up = self.frames.reference_camera()
+        position, look_at, up = self.frames.fitted_camera()
         with client.atomic():
             client.camera.up_direction = up
             client.camera.position = position
             client.camera.look_at = look_at
 
-    def _reset_cameras(self) -> None:
-        for client in self.server.get_clients().values():
-            self._place(client)
+    def _next(self):
+        """The tab to draw next and what to draw: ``(client id, tab, version, state, pose, aspect, moving)``;
+        None when every tab is drawn or waits for its camera to rest."""
+        now = time.monotonic()
+        with self._lock:
+            for client_id, tab in self._tabs.items():
+                if tab.settled:
+                    continue
+                moving = tab.camera_moving and now - tab.changed_at < SETTLE_SECONDS
+                if moving and tab.drawn_version == tab.version:
+                    continue            # this preview is shown; the full frame waits for the camera to rest
+                return client_id, tab, tab.version, tab.state, tab.to_world, tab.aspect, moving
+        return None
 
     def _loop(self) -> None:
-        drawn_version, drawn_full = -1, False
         while not self._stop.is_set():
-            with self._lock:
-                version, changed_at = self._version, self._changed_at
-                state, to_world, aspect = self._state, self._to_world, self._aspect
-            if version == drawn_version and drawn_full:
-                self._stop.wait(0.01)
+            work = self._next()
+            if work is None:
+                self._wake.wait(0.02)
+                self._wake.clear()
                 continue
-            moving = time.monotonic() - changed_at < SETTLE_SECONDS
-            if moving and version == drawn_version:
-                self._stop.wait(0.01)       # this preview is shown; the full frame waits for the view to rest
+            client_id, tab, version, state, to_world, aspect, moving = work
+            client = self.server.get_clients().get(client_id)
+            if client is None:          # the tab closed since
+                with self._lock:
+                    self._tabs.pop(client_id, None)
                 continue
             resolution = self.frames.moving_resolution if moving else self.frames.resolution
             try:
@@ -277,21 +365,21 @@ class Viewer:
             except KeyboardInterrupt:
                 return      # Ctrl-C: the render between passes saw it; the main thread stops the viewer
             except (SliceError, ValueError) as error:
-                self._status.content = f"**cannot show this:** {error}"
-                drawn_version, drawn_full = version, True
-                self._shown_version = version
+                tab.status.content = f"**cannot show this:** {error}"
+                with self._lock:
+                    tab.drawn_version, tab.drawn_full = version, True
                 continue
-            rgb = to_rgb(frame.image)
             background = 255 if state.field == "light" else 0
-            self.server.scene.set_background_image(padded_to_aspect(rgb, aspect, background), format="png")
+            canvas = padded_to_aspect(to_rgb(frame.image), aspect, background)
+            # Previews as JPEG (1 ms to encode against 15 ms for PNG); the frame at rest exact, as PNG.
+            client.scene.set_background_image(canvas, format="jpeg" if moving else "png", jpeg_quality=95)
             self.frames_drawn += 1
             if not moving:
-                self._image.image = rgb
                 self.last_frame = frame
-                self._shown_version = version
-                self._status.content = (f"{frame.image.shape[1]}x{frame.image.shape[0]} in "
-                                        f"{1000 * frame.seconds:.0f} ms")
-            drawn_version, drawn_full = version, not moving
+                tab.status.content = (f"{frame.image.shape[1]}x{frame.image.shape[0]} in "
+                                      f"{1000 * frame.seconds:.0f} ms")
+            with self._lock:
+                tab.drawn_version, tab.drawn_full = version, not moving
 
 
 def run_viewer(source: str, defines: dict | None = None, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
