@@ -8,7 +8,7 @@ The defaults are the configuration that met the reconstruction targets (the 100 
 docs/reconstruction.md): 20,000 iterations of 2,048 pixels, the learning rate from 0.05 down to 0.002, a
 grid whose resolution follows the specimen's shape (:func:`~mi_nest.reconstruct.fields.default_resolution`)
 and the :data:`REGULARISED` regulariser, its weights relative to the field's own scale. :data:`FAST_OPTIONS`
-meet the same targets, by less, in a third of the time (docs/performance.md).
+meet the same targets, by less, in about a third of the time (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -182,7 +182,7 @@ NO_REGULARISER = Regulariser()
 # stages, which only choose the branch, and fewer of them (the finest stage 70% of the run, the path curriculum
 # over the coarse 30%); half the pixels a batch, for more Adam steps (batch noise did not limit); a higher final
 # learning rate with the last 45% of the iterates averaged. Side by side with the defaults (docs/performance.md,
-# "Fewer coarse iterations"): the disk and the kitten targets met in a third of the defaults' time.
+# "Time to the targets"): the disk and the kitten targets met in about a third of the defaults' time.
 FAST_OPTIONS = {"iterations": 10_800, "finest_stage": 0.7, "path_curriculum": 0.3, "batch_size": 1024,
                 "coarse_pixel_samples": 1, "final_learning_rate": 1e-2, "average_last": 0.45}
 
