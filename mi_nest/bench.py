@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .render import render
+from .render import NonFiniteImageError, render
 from .scene import load_scene
 from .physics import MEASUREMENTS
 
@@ -49,6 +49,8 @@ CASES = {
 
 
 def _render(case, method, points, step, res):
+    """``(channels, best seconds of two renders)``; channels None where the method blew up (NaN or inf pixels:
+    rk4 at long steps), which the chart marks."""
     scene = load_scene(case.scene, res=res, spp=1, step=step, **case.defines)
     integrator = scene.integrator()
     integrator.method, integrator.points = method, points or "midpoint"
@@ -56,11 +58,19 @@ def _render(case, method, points, step, res):
     with warnings.catch_warnings():
         # rk4 warns when it is not unitary; here that is the measurement itself.
         warnings.simplefilter("ignore", RuntimeWarning)
-        render(scene)                          # compiles the kernel
-        for _ in range(2):
-            start = time.perf_counter()
-            result = render(scene)
-            best = min(best, time.perf_counter() - start)
+        try:
+            render(scene)                          # compiles the kernel
+            for _ in range(2):
+                start = time.perf_counter()
+                result = render(scene)
+                best = min(best, time.perf_counter() - start)
+        except NonFiniteImageError:
+            start = time.perf_counter()         # the time of the render that blew up, for the chart's cross
+            try:
+                render(scene)
+            except NonFiniteImageError:
+                pass
+            return None, time.perf_counter() - start
     return result.channels, best
 
 
@@ -82,10 +92,13 @@ def run_accuracy(case_names: Sequence[str] = tuple(CASES), res: int = 256, progr
         for label, method, points in CURVES:
             for step in case.steps:
                 channels, seconds = _render(case, method, points, step, res)
-                per_pixel = np.max([np.abs(channels[n] - reference[n]) for n in MEASUREMENTS], axis=0)
-                error, error_max = float(np.percentile(per_pixel, 99)), float(np.max(per_pixel))
+                if channels is None:
+                    error = error_max = float("inf")
+                else:
+                    per_pixel = np.max([np.abs(channels[n] - reference[n]) for n in MEASUREMENTS], axis=0)
+                    error, error_max = float(np.percentile(per_pixel, 99)), float(np.max(per_pixel))
                 # Rays times their steps (the march takes ceil(L / step) per chord; L / step here).
-                megaray_steps = float(np.sum(np.ceil(channels["path.length"] / step))) / 1e6
+                megaray_steps = float(np.sum(np.ceil(reference["path.length"] / step))) / 1e6
                 rows.append({"case": name, "method": label, "step_mm": step, "error": error, "error_max": error_max,
                              "seconds": seconds, "megaray_steps": megaray_steps,
                              "seconds_per_megaray_step": seconds / max(megaray_steps, 1e-12)})

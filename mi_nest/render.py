@@ -23,6 +23,10 @@ from .version import __version__
 MAX_FRINGE_ORDER = 1e5
 
 
+class NonFiniteImageError(SceneError):
+    """A render produced NaN or inf pixels."""
+
+
 def _check_image(scene, image, names, passes):
     """Refuse an image with NaN or inf pixels, naming the likely cause; warn when no pixel sees a specimen.
 
@@ -37,7 +41,7 @@ def _check_image(scene, image, names, passes):
         extent = (f"fringe orders reach {order[finite].max():.3g} (real parts show a few hundred at most)"
                   if finite.any() else "the fringe order overflows")
         channels = [n for n, b in zip(names, bad.any(axis=(0, 1))) if b]
-        raise SceneError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf (in "
+        raise NonFiniteImageError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf (in "
                          f"{', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}): the stress field is NaN "
                          f"there, or so large that {extent}; check its magnitude and units (MPa)")
     if order.max() > MAX_FRINGE_ORDER:

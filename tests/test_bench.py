@@ -2,6 +2,7 @@
 import csv
 import math
 
+import numpy as np
 
 from mi_nest import bench
 
@@ -28,3 +29,14 @@ def test_unknown_bench_case_is_named(capsys):
     from mi_nest.cli import main
     assert main(["bench", "accuracy", "--scenes", "disk,teapot", "-o", "unused"]) == 2
     assert "unknown bench case(s) ['teapot']" in capsys.readouterr().err
+
+
+def test_a_method_that_blows_up_is_recorded_and_the_sweep_goes_on(monkeypatch):
+    """rk4 near the disk's load points renders NaN pixels, which render() refuses: the sweep marks that point
+    blown up (its time kept for the chart's cross) instead of ending with the refusal."""
+    monkeypatch.setitem(bench.CASES, "singular", bench.Case("disk, load points", "disk_compression", (6.0, 0.375)))
+    rows = bench.run_accuracy(("singular",), res=16, progress=False)
+    by_point = {(r["method"], r["step_mm"]): r for r in rows}
+    assert by_point[("rk4", 0.375)]["error"] == float("inf")
+    assert all(np.isfinite(r["error"]) for r in rows if r["method"] != "rk4")
+    assert all(r["seconds"] > 0 and r["megaray_steps"] > 0 for r in rows)
