@@ -6,34 +6,48 @@ and every frame the 3D view draws are stamped with the page's own clock. Measure
 
 - page load: from navigation to the first frame drawn;
 - slider step: a click on the load-scale slider's track, a few pixels right of the last (a new value), to the
-  first frame drawn after it (median of ``--steps``, each from a settled view);
+  first frame drawn after it, and to the first at full resolution (medians of ``--steps``, each from a settled
+  view);
 - drag: a pointer drag across the view for ``--drag-seconds``; distinct frames drawn per second while the pointer
   is down, and the longest gap between them;
 - quick keys: 30 arrow presses on the focused slider as fast as Playwright types, to the last frame they cause
   (viser's client also turns the camera with arrow keys, even on a focused slider: the view turns a little).
 
 The targets (issue 33, on 2 cores): slider step median under 250 ms; at least 5 frames per second during a drag
-at 256 px.
+at 256 px. With ``--baseline DIR`` (another checkout, e.g. a git worktree) each scene is measured with both
+versions' viewers, one after the other, through this checkout's probe and browser.
 
-    python benchmarks/viewer_browser.py [--scene disk_compression] [--res 256] [--steps 15]
+    python benchmarks/viewer_browser.py [--scene disk_compression] [--res 256] [--steps 15] [--baseline DIR]
 """
 from __future__ import annotations
 
 import argparse
+import runpy
 import shutil
 import statistics
+import tempfile
 import time
+from pathlib import Path
 
-from mi_nest.inside.page_probe import PAGE_PROBE
-from mi_nest.inside.viewer import FrameRenderer, Viewer
+from reconstruction import cpu_name, installed_layout, run
 
-from reconstruction import cpu_name
+HERE = Path(__file__).resolve().parents[1]
+# This checkout's probe, for a baseline's viewer too (read from the file: a baseline's mi_nest may have none).
+PAGE_PROBE = runpy.run_path(str(HERE / "mi_nest" / "inside" / "page_probe.py"))["PAGE_PROBE"]
+WORKER = f"""
+import json, runpy, sys
+sys.path.insert(1, {str(Path(__file__).resolve().parent)!r})
+import mi_nest
+options = json.loads(sys.argv[1])
+results = runpy.run_path({str(Path(__file__).resolve())!r})["measure"](**options)
+print(json.dumps({{"results": results, "mi_nest": mi_nest.__file__}}))
+"""
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
-def wait_settled(viewer: Viewer, seconds: float = 60.0) -> None:
+def wait_settled(viewer, seconds: float = 60.0) -> None:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         if viewer.settled:
@@ -43,8 +57,10 @@ def wait_settled(viewer: Viewer, seconds: float = 60.0) -> None:
     raise SystemExit("the viewer did not settle")
 
 
-def frames_after(page, start: float) -> list[float]:
-    return sorted(drawn for _, _, drawn in page.evaluate("window.__frames") if drawn > start)
+def frames_after(page, start: float, full: int | None = None) -> list[float]:
+    """When the frames drawn after ``start`` were drawn (with ``full``, only those at least that tall)."""
+    return sorted(drawn for _, _, drawn, height in page.evaluate("window.__frames")
+                  if drawn > start and (full is None or height >= full))
 
 
 def last_input(page, kind: str) -> float:
@@ -66,7 +82,10 @@ def slider(page, label: str):
 
 
 def measure(scene: str, resolution: int, moving: int, steps: int, drag_seconds: float) -> dict:
+    """The figures of one viewer (the ``mi_nest`` this process imports) on ``scene``."""
     from playwright.sync_api import sync_playwright
+
+    from mi_nest.inside.viewer import FrameRenderer, Viewer
     viewer = Viewer(FrameRenderer(scene, {}, resolution, moving), port=0)
     viewer.start()
     results = {}
@@ -84,18 +103,21 @@ def measure(scene: str, resolution: int, moving: int, steps: int, drag_seconds: 
 
             load = slider(page, "load scale")
             track = load.locator("xpath=ancestor::div[contains(@class, 'mantine-Slider-root')][1]").bounding_box()
-            latencies = []
+            latencies, full_latencies = [], []
             for step in range(steps):
                 wait_settled(viewer)
                 page.mouse.click(track["x"] + track["width"] * (0.4 + 0.03 * (step + 1)),
                                  track["y"] + 0.5 * track["height"])
                 pressed = last_input(page, "pointerdown")
                 deadline = time.monotonic() + 30
-                while not frames_after(page, pressed) and time.monotonic() < deadline:
+                while not frames_after(page, pressed, resolution) and time.monotonic() < deadline:
                     time.sleep(0.005)
                 latencies.append(frames_after(page, pressed)[0] - pressed)
+                full_latencies.append(frames_after(page, pressed, resolution)[0] - pressed)
             results["slider step to frame, median (ms)"] = statistics.median(latencies)
-            results["slider step to frame, range (ms)"] = (min(latencies), max(latencies))
+            results["slider step to full frame, median (ms)"] = statistics.median(full_latencies)
+            results["slider step to frame, fastest (ms)"] = min(latencies)
+            results["slider step to frame, slowest (ms)"] = max(latencies)
 
             wait_settled(viewer)
             canvas = page.locator("canvas").first.bounding_box()
@@ -120,7 +142,8 @@ def measure(scene: str, resolution: int, moving: int, steps: int, drag_seconds: 
                 page.keyboard.press("ArrowRight")
             pressed = last_input(page, "keydown")
             wait_settled(viewer)
-            results["30 quick keys, last key to last frame (ms)"] = frames_after(page, pressed)[-1] - pressed
+            last = frames_after(page, pressed, resolution)[-1]
+            results["30 quick keys, last key to last frame (ms)"] = last - pressed
             browser.close()
     finally:
         viewer.stop()
@@ -134,12 +157,21 @@ def main():
     parser.add_argument("--moving-res", type=int, default=128, help="while the view moves (default: 128)")
     parser.add_argument("--steps", type=int, default=15, help="slider steps timed (default: 15)")
     parser.add_argument("--drag-seconds", type=float, default=3.0, help="length of the drag (default: 3)")
+    parser.add_argument("--baseline", type=Path, help="another mi_nest checkout to measure beside this one")
     args = parser.parse_args()
     print(f"CPU: {cpu_name()}; Chromium {CHROMIUM}, headless, software rendering")
-    for scene in args.scene or ["disk_compression", "kitten"]:
-        for name, value in measure(scene, args.res, args.moving_res, args.steps, args.drag_seconds).items():
-            shown = f"{value[0]:.0f} to {value[1]:.0f}" if isinstance(value, tuple) else f"{value:.3g}"
-            print(f"{scene:18s} {name:44s} {shown}", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        versions = {"this checkout": installed_layout(HERE, Path(tmp) / "current")}
+        if args.baseline:
+            versions["baseline"] = installed_layout(args.baseline.resolve(), Path(tmp) / "baseline")
+        for scene in args.scene or ["disk_compression", "kitten"]:
+            options = {"scene": scene, "resolution": args.res, "moving": args.moving_res, "steps": args.steps,
+                       "drag_seconds": args.drag_seconds}
+            measured = {name: run(entry, options, WORKER)["results"] for name, entry in reversed(versions.items())}
+            print(f"{scene}: " + "  |  ".join(versions))
+            for name in measured["this checkout"]:
+                values = "  |  ".join(f"{measured[version][name]:10.3g}" for version in versions)
+                print(f"  {name:44s} {values}", flush=True)
 
 
 if __name__ == "__main__":

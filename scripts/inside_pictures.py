@@ -29,6 +29,8 @@ def viewer_screenshot(source: str, output: Path) -> None:
     import re
 
     from playwright.sync_api import sync_playwright
+
+    from mi_nest.inside.page_probe import PAGE_PROBE
     process = subprocess.Popen(MI_NEST + ["view", source, "--no-browser", "--port", "0"], stdout=subprocess.PIPE,
                                text=True, cwd=IMAGES)
     try:
@@ -41,8 +43,9 @@ def viewer_screenshot(source: str, output: Path) -> None:
                 "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                 "--disable-background-networking", "--disable-component-update", "--disable-sync"])
             page = browser.new_page(viewport={"width": 1200, "height": 760})
+            page.add_init_script(PAGE_PROBE)
             page.goto(url)
-            page.wait_for_selector("img[src^='blob:']", timeout=120_000)
+            page.wait_for_function("window.__frames.length > 0", timeout=120_000)
             # Headless chromium renders WebGL in software, and viser says so in a notification: close it.
             for close in page.locator(".mantine-Notification-root button").all():
                 close.click()

@@ -4,7 +4,8 @@ the page's own clock (ms since navigation), and keeps the bytes of the last fram
 
 The viewer's frames are the 3D view's background image: viser decodes each into a detached ``<img>`` and draws
 it on the next animation frame; the panel's own images are attached to the page and are not counted.
-``window.__frames`` holds ``[received, decoded, drawn]`` per frame, ``window.__inputs`` ``[kind, time]``, and
+``window.__frames`` holds ``[received, decoded, drawn, height]`` per frame (height: the image's, in pixels, which
+tells a preview from a frame at rest), ``window.__inputs`` ``[kind, time]``, and
 ``window.__lastFrame`` the last frame's encoded bytes (PNG at rest, JPEG while the camera moves).
 """
 
@@ -22,8 +23,9 @@ PAGE_PROBE = """
         fetch(value).then((r) => r.arrayBuffer()).then((bytes) => { window.__lastFrame = new Uint8Array(bytes); });
         this.addEventListener("load", () => {
           const decoded = performance.now();
+          const height = this.naturalHeight;
           requestAnimationFrame(() => requestAnimationFrame(
-            (drawn) => window.__frames.push([received, decoded, drawn])));
+            (drawn) => window.__frames.push([received, decoded, drawn, height])));
         }, {once: true});
       }
       source.set.call(this, value);
