@@ -1,5 +1,6 @@
 """The README's dataset-then-reconstruction recipe at its stated size, in its stated time, below 10% error
-(slow: about 5 minutes on 2 cores; ``pytest -m slow tests/test_readme_recipe.py``)."""
+(slow: about 3 minutes on 2 cores; ``pytest -m slow -s tests/test_readme_recipe.py`` prints the figures: on an
+AMD EPYC, Zen 4, 2 cores, 2026-11-26: simulate 33 s, reconstruct 144 s, 4.99%, held-out PSNR 19.2 dB)."""
 from __future__ import annotations
 
 import json
@@ -23,7 +24,7 @@ def _recipe():
              for line in block.splitlines()]
     simulate = next(line for line in lines if " simulate " in line)
     reconstruct = next(line for line in lines if " reconstruct " in line and "--fast" in line)
-    stated = re.search(r"about (\d+)% error in about (\d+) minutes", reconstruct)
+    stated = re.search(r"about (\d+)% error in about ([\d.]+) minutes", reconstruct)
     assert stated, f"the README's --fast line states no error and time: {reconstruct}"
     return simulate.split("  #")[0], reconstruct.split("  #")[0], float(stated[1]) / 100, 60 * float(stated[2])
 
@@ -38,12 +39,16 @@ def _run(line, cwd):
 @pytest.mark.slow
 def test_the_readme_recipe_reconstructs_below_ten_percent_in_its_stated_time(tmp_path):
     simulate, reconstruct, error, seconds = _recipe()
+    start = time.perf_counter()
     _run(simulate, tmp_path)
+    simulated = time.perf_counter() - start
     start = time.perf_counter()
     _run(reconstruct, tmp_path)
     elapsed = time.perf_counter() - start
     output = shlex.split(reconstruct)[shlex.split(reconstruct).index("-o") + 1]
     metrics = json.loads((tmp_path / output / "reconstruction.json").read_text())["metrics"]
+    print(f"README recipe: simulate {simulated:.0f} s, reconstruct {elapsed:.0f} s, deviatoric error "
+          f"{100 * metrics['deviatoric_error']:.2f}%, held-out PSNR {metrics['test_psnr']:.1f} dB")
     assert metrics["deviatoric_error"] < 0.10
     assert metrics["deviatoric_error"] < 1.2 * error, f"{metrics['deviatoric_error']:.3f}, the README says {error}"
     assert elapsed < TIME_SLACK * seconds, f"{elapsed:.0f} s, the README says about {seconds:.0f} s"
