@@ -284,7 +284,11 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         setup = SceneSetup(scene, sensor, right, field, self._view.phase_scale, marching)
         if self._view.polariscope is not None:
             setup.polariscope = OpaquePolariscope(self._view.polariscope)
-        decision = self._decided or self._method().decide(setup, scene, sensor, self.step_size)
+        decision = self._decided
+        if decision is None:
+            decision = self._method().decide(setup, scene, sensor, self.step_size)
+            if decision.reason is None:         # a step given, not one 'auto' chose for this field
+                guards.warn_if_coarse(setup, scene, sensor, decision.step_size)
         guards.check_steps_per_ray(setup.specimen_diagonal, decision.step_size)
         self.decision = decision
         self._prepared_now = Prepared(setup, decision)

@@ -56,9 +56,10 @@ class FieldRates:
     curvature: float = 0.0    # largest |d^2 (p, q) / ds^2| (phase per mm^3): the midpoint rule's error
 
 
-def choose(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor, tolerance: float, linear: Method,
-           magnus4: ChainMethod) -> tuple[Method, float, str]:
-    """``(method, step_size, reason)``: ``linear`` or ``magnus4``, from the fields sampled along the light."""
+def sample_lines(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor) -> tuple[FieldRates | None, list, np.ndarray]:
+    """The field inside every specimen sampled along lines parallel to the light: ``(rates over all specimens,
+    per specimen (generator, p, q, inside, starts, crossings), the light's direction)``; rates None when no
+    line crosses a specimen."""
     to_world = sensor.world_transform()
     k = -np.array(dr.normalize(to_world @ mi.Vector3f(0, 0, 1))).ravel()    # light travels towards the camera
     # The frame the walk marches in (SceneSetup.projection_coefficients), here on NumPy.
@@ -84,11 +85,20 @@ def choose(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor, tolerance: flo
         rates.append(analyse_lines(p, q, s[1] - s[0], inside))
         lines.append((generator, p, q, inside, starts, crossings))
     if not rates:
+        return None, lines, k
+    combined = FieldRates(all(r.commuting for r in rates), max(r.retardance_rate for r in rates),
+                          max(r.rotation_rate for r in rates), max(r.path_length for r in rates),
+                          max(r.curvature for r in rates))
+    return combined, lines, k
+
+
+def choose(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor, tolerance: float, linear: Method,
+           magnus4: ChainMethod) -> tuple[Method, float, str]:
+    """``(method, step_size, reason)``: ``linear`` or ``magnus4``, from the fields sampled along the light."""
+    combined, lines, k = sample_lines(setup, scene, sensor)
+    if combined is None:
         return linear, FALLBACK_STEP, "photoelastic auto: no analysis line crossed a specimen; linear model"
-    commuting = all(r.commuting for r in rates)
-    combined = FieldRates(commuting, max(r.retardance_rate for r in rates), max(r.rotation_rate for r in rates),
-                          max(r.path_length for r in rates), max(r.curvature for r in rates))
-    if commuting:
+    if combined.commuting:
         step = linear_step(combined, tolerance)
         return linear, step, (
             f"photoelastic auto: the principal axes do not turn along the light in any specimen, so the steps "
