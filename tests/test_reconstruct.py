@@ -322,12 +322,16 @@ def test_trilinear_basis_is_the_grid_fields_own_interpolation():
     np.testing.assert_allclose(basis @ nodes.reshape(-1, 5), sampled, atol=2e-5)
 
 
-def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
+def _disk_floor_case():
+    """``(scene, shapes, truth, points, field)``: the 200 N disk over 4 mm, a 20-point lattice, an 8-node grid."""
     scene = mi_nest.load_scene("disk_compression", res=8, load=200, contact_width=4)
     shapes = specimen_shapes(scene)
-    truth = shapes[0].interior_medium().field
-    points = metrics.evaluation_points(scene, shapes, 20)
     field = make_field(FieldConfig(kind="grid", resolution=8), *specimen_bounds(shapes), 1.0)
+    return scene, shapes, shapes[0].interior_medium().field, metrics.evaluation_points(scene, shapes, 20), field
+
+
+def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
+    scene, shapes, truth, points, field = _disk_floor_case()
     sampled = metrics.representation_floor(field, truth, points)
     best = metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
     assert 0 < best < 0.8 * sampled
@@ -336,11 +340,7 @@ def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
 
 
 def test_the_grid_floor_is_a_floor_no_grid_scores_below():
-    scene = mi_nest.load_scene("disk_compression", res=8, load=200, contact_width=4)
-    shapes = specimen_shapes(scene)
-    truth = shapes[0].interior_medium().field
-    points = metrics.evaluation_points(scene, shapes, 20)
-    field = make_field(FieldConfig(kind="grid", resolution=8), *specimen_bounds(shapes), 1.0)
+    scene, shapes, truth, points, field = _disk_floor_case()
     floor = metrics.grid_floor(field, truth, points)
     assert 0 < floor < metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
     assert floor < metrics.representation_floor(field, truth, points)
