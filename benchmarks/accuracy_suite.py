@@ -1,0 +1,224 @@
+"""The accuracy suite: how well ``mi-nest reconstruct`` with its defaults recovers the stress of fixed cases
+within a fixed budget, as a user would run it (issue 34's yardstick).
+
+Each case is a dataset simulated once with fixed seeds and read noise 0.01 (``mi-nest simulate``, kept in
+``--data`` and resumed), then reconstructed by ``mi-nest reconstruct DATA -o OUT --minutes BUDGET`` with no
+other option but the case's own (``--kind mlp``...) and ``--allow-aliased`` (a case whose fringes alias is
+measured, not refused; its share is a column). The error is the relative deviatoric error against the field the
+dataset was simulated from, followed during the run (``track_error_every``) for the chart. Every finished case
+is written to the CSV at once: an interrupted suite keeps what it did, and a rerun skips the cases it has.
+
+    python benchmarks/accuracy_suite.py                  # every case, 10 minutes each (hours on 2 cores)
+    python benchmarks/accuracy_suite.py --quick          # 6x6 rotations at 32 px, 10 s each: a few minutes
+    python benchmarks/accuracy_suite.py --cases disk_100N,kitten --minutes 3
+
+Writes ``experiments/results/accuracy_suite[_quick].csv`` and ``.png`` (error against optimisation time, a line
+per case) and prints the table for docs/reconstruction.md, with the CPU.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from reconstruction import cpu_name
+
+HERE = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "mi_nest.cli"]
+NOISE = 0.01
+SEED = 0
+
+
+@dataclass(frozen=True)
+class Case:
+    """One dataset and how it is reconstructed; ``target``: the relative deviatoric error it should stay below."""
+    name: str
+    scene: str
+    defines: dict = field(default_factory=dict)
+    rotations: int = 32
+    res: int = 64
+    angle_range: float = 180.0              # degrees, both axes
+    flags: tuple = ()                       # reconstruct's own options for this case
+    target: float = 0.15
+    note: str = ""
+
+
+DISK_100 = {"load": 100, "contact_width": 4}
+CASES = [
+    Case("disk_100N", "disk_compression", DISK_100, target=0.05, note="the disk target"),
+    Case("kitten", "kitten", {"fringe_value": 4500}, target=0.10, note="the kitten target"),
+    Case("disk_300N", "disk_compression", {"load": 300, "contact_width": 4}, target=0.10, note="dense fringes"),
+    Case("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, note="denser fringes"),
+    Case("disk_1kN_256px", "disk_compression", {"load": 1000, "contact_width": 4}, res=256,
+         note="the shipped scene's own load, a user's first dataset"),
+    Case("stacked_disks", "stacked_disks", {"load": 300, "contact_width": 4}, target=0.10,
+         note="two disks 45 degrees apart: axes turn along the rays"),
+    Case("disk_100N_mlp", "disk_compression", DISK_100, flags=("--kind", "mlp"), note="the paper's MLP"),
+    Case("disk_100N_hashgrid", "disk_compression", DISK_100, flags=("--kind", "hashgrid"),
+         note="a hash grid"),
+    Case("disk_300N_90deg", "disk_compression", {"load": 300, "contact_width": 4}, angle_range=90.0,
+         note="seen over 90 degrees on both axes"),
+    Case("disk_air", "disk_compression", {"load": 60, "contact_width": 4, "ior": 1.55},
+         note="n = 1.55 in air, refraction-aware"),
+    Case("disk_water", "disk_compression", {"load": 60, "contact_width": 4, "ior": 1.55, "ext_ior": 1.33},
+         note="n = 1.55 in water"),
+    Case("kitten_air", "kitten", {"fringe_value": 4500, "ior": 1.55}, note="n = 1.55 in air, refraction-aware"),
+    Case("kitten_water", "kitten", {"fringe_value": 4500, "ior": 1.55, "ext_ior": 1.33}, note="n = 1.55 in water"),
+    Case("bracket", "bracket", note="FEM bracket: stress concentrates at the fillet"),
+    Case("shaft_torsion", "shaft_torsion", note="shear whose axes turn along every ray"),
+    Case("lame_cylinder", "lame_cylinder", note="thick tube under internal pressure"),
+    Case("boussinesq", "boussinesq", note="a point load on a half-space: singular"),
+]
+# --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
+QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
+
+
+def simulate(case: Case, data: Path, rotations: int, res: int) -> float:
+    """The case's dataset in ``data`` (resumed when there); returns the seconds it took."""
+    start = time.perf_counter()
+    command = [*CLI, "simulate", case.scene, "-o", str(data), "--azimuth", str(rotations), "--elevation",
+               str(rotations), "--res", str(res), "--noise", str(NOISE), "--seed", str(SEED),
+               "--azimuth-range", f"{case.angle_range:g}", "--elevation-range", f"{case.angle_range:g}"]
+    command += [f"-D{name}={value}" for name, value in case.defines.items()]
+    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"simulate failed: {done.stderr.strip().splitlines()[-1]}")
+    return time.perf_counter() - start
+
+
+def reconstruct(case: Case, data: Path, output: Path, minutes: float, track_every: int) -> dict:
+    """``mi-nest reconstruct`` of ``data`` within ``minutes``: the wall time and what it recorded."""
+    start = time.perf_counter()
+    command = [*CLI, "reconstruct", str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
+               "--allow-aliased", "--no-progress", "--option", f"track_error_every={track_every}", *case.flags]
+    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"reconstruct failed: {done.stderr.strip().splitlines()[-1]}")
+    record = json.loads((output / "reconstruction.json").read_text())
+    return {"wall": time.perf_counter() - start, "record": record}
+
+
+def row_of(case: Case, rotations: int, res: int, minutes: float, simulated: float, run: dict) -> dict:
+    metrics, record = run["record"]["metrics"], run["record"]
+    error = metrics.get("deviatoric_error", float("nan"))
+    return {"case": case.name, "scene": case.scene,
+            "defines": " ".join(f"{k}={v}" for k, v in case.defines.items()),
+            "rotations": f"{rotations}x{rotations} over {case.angle_range:g} deg", "res": res,
+            "flags": " ".join(case.flags), "field": record["field"], "budget_min": round(minutes, 3),
+            "simulate_s": round(simulated, 1), "reconstruct_s": round(run["wall"], 1),
+            "iterations": len(record["history"]), "deviatoric_error": round(error, 4),
+            "grid_floor": round(metrics.get("grid_floor", float("nan")), 4),
+            "principal_difference_error": round(metrics.get("principal_difference_error", float("nan")), 4),
+            "test_psnr": round(metrics.get("test_psnr", float("nan")), 2),
+            "aliased_share": round(metrics.get("aliased_share", 0.0), 4), "target": case.target,
+            "met": "yes" if error < case.target else "no", "note": case.note, "cpu": cpu_name()}
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(".tmp")
+    with open(temporary, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    temporary.replace(path)
+
+
+def read_rows(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def history(output: Path) -> list[tuple[float, float]]:
+    """``(seconds, relative deviatoric error)`` followed during the run whose result is in ``output``."""
+    record = output / "reconstruction.json"
+    if not record.is_file():
+        return []
+    return [(h["seconds"], h["deviatoric_error"]) for h in json.loads(record.read_text())["history"]
+            if "deviatoric_error" in h]
+
+
+def chart(histories: dict, path: Path, title: str) -> None:
+    """Relative deviatoric error against optimisation time, a line per case."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    figure, axis = plt.subplots(figsize=(8, 5))
+    for name, points in histories.items():
+        if points:
+            axis.plot(*zip(*points), lw=0.9, label=name)
+    axis.set(xlabel="optimisation time (s)", ylabel="relative deviatoric stress error", yscale="log", title=title)
+    axis.axhline(0.15, color="grey", lw=0.6, ls="--")
+    axis.legend(fontsize=7, ncol=2)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| case | data | options | time | iterations | deviatoric error | target | held-out PSNR | aliased |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+    for row in rows:
+        lines.append(f"| {row['case']} ({row['note']}) | {row['scene']} {row['defines']}, {row['rotations']}, "
+                     f"{row['res']} px | {row['flags'] or 'defaults'}, {row['field']} | {row['reconstruct_s']} s | "
+                     f"{row['iterations']} | **{100 * float(row['deviatoric_error']):.1f}%** | "
+                     f"{100 * float(row['target']):.0f}% | {row['test_psnr']} dB | "
+                     f"{100 * float(row['aliased_share']):.0f}% |")
+    return "\n".join(lines)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="6x6 rotations at 32 px, 10 s each")
+    parser.add_argument("--cases", help=f"comma-separated (default: all): {', '.join(c.name for c in CASES)}")
+    parser.add_argument("--minutes", type=float, help="optimisation budget per case (default: 10; --quick 1/6)")
+    parser.add_argument("--data", type=Path, default=HERE / "experiments" / "out" / "accuracy_suite",
+                        help="where datasets and reconstructions are kept (default: experiments/out/accuracy_suite)")
+    parser.add_argument("--again", action="store_true", help="rerun cases the CSV already has")
+    args = parser.parse_args()
+    chosen = CASES if not args.cases else [c for c in CASES if c.name in args.cases.split(",")]
+    unknown = set(args.cases.split(",")) - {c.name for c in CASES} if args.cases else set()
+    if unknown:
+        raise SystemExit(f"unknown case(s) {sorted(unknown)}; the cases are {[c.name for c in CASES]}")
+    label = "accuracy_suite_quick" if args.quick else "accuracy_suite"
+    minutes = args.minutes or (QUICK["minutes"] if args.quick else 10.0)
+    track_every = 20 if args.quick else 200
+    results = HERE / "experiments" / "results"
+    rows = read_rows(results / f"{label}.csv")
+    done = {row["case"] for row in rows} if not args.again else set()
+    print(f"CPU: {cpu_name()}; {len(chosen)} cases, {minutes:g} min each", flush=True)
+    for case in chosen:
+        if case.name in done:
+            print(f"{case.name}: in {label}.csv already (--again reruns it)", flush=True)
+            continue
+        rotations, res = (min(case.rotations, QUICK["rotations"]), min(case.res, QUICK["res"])) if args.quick \
+            else (case.rotations, case.res)
+        data = args.data / "data" / f"{case.name}_{rotations}x{rotations}_{res}"
+        output = args.data / label / case.name
+        try:
+            simulated = simulate(case, data, rotations, res)
+            run = reconstruct(case, data, output, minutes, track_every)
+        except RuntimeError as error:
+            print(f"{case.name}: {error}", flush=True)
+            continue
+        row = row_of(case, rotations, res, minutes, simulated, run)
+        rows = [r for r in rows if r["case"] != case.name] + [row]
+        write_rows(rows, results / f"{label}.csv")
+        print(f"{case.name}: {100 * row['deviatoric_error']:.1f}% in {row['reconstruct_s']} s "
+              f"({row['iterations']} iterations, {row['field']}; target {100 * case.target:.0f}%: {row['met']})",
+              flush=True)
+    if rows:
+        chart({row["case"]: history(args.data / label / row["case"]) for row in rows}, results / f"{label}.png",
+              f"accuracy suite{' (quick)' if args.quick else ''}: {minutes:g} min per case, {cpu_name()}")
+        print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
