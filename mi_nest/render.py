@@ -41,9 +41,10 @@ def _check_image(scene, image, names, passes):
         extent = (f"fringe orders reach {order[finite].max():.3g} (real parts show a few hundred at most)"
                   if finite.any() else "the fringe order overflows")
         channels = [n for n, b in zip(names, bad.any(axis=(0, 1))) if b]
-        raise NonFiniteImageError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf (in "
-                         f"{', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}): the stress field is NaN "
-                         f"there, or so large that {extent}; check its magnitude and units (MPa)")
+        raise NonFiniteImageError(f"{name}: {int(bad.any(axis=-1).sum())} of {length.size} pixels are NaN or inf "
+                                  f"(in {', '.join(channels[:3])}{', ...' if len(channels) > 3 else ''}): the stress "
+                                  f"field is NaN there, or so large that {extent}; check its magnitude and units "
+                                  "(MPa)")
     if order.max() > MAX_FRINGE_ORDER:
         raise SceneError(f"{name}: fringe orders reach {order.max():.3g} in {int((order > MAX_FRINGE_ORDER).sum())} of "
                          f"{length.size} pixels; beyond {MAX_FRINGE_ORDER:.0e} the float32 phases lose their meaning "

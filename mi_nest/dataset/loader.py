@@ -11,6 +11,7 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import replace
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -81,6 +82,12 @@ class Dataset:
         self._cache = OrderedDict()
         self._splits = {}
         self._cache_bytes = int(cache_bytes)
+
+    @cached_property
+    def fingerprint(self) -> str:
+        """The dataset as it stood when first asked: its index and each rotation file's size and modification
+        time (what a checkpoint records of the data it was fitted to)."""
+        return fmt.content_fingerprint(self.directory, self.index)
 
     def __len__(self):
         """The number of rotations whose files are present."""

@@ -29,7 +29,7 @@ from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
 from ..render import available_memory, render, render_plan
 from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
-                     scene_file, scene_inputs, specimen_bounds, specimen_media, specimen_shapes)
+                     scene_file, scene_inputs, scene_sensor, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
 from . import format as fmt
 from .camera import CameraModel
@@ -227,7 +227,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
     render_plan(scene, settings.spp)     # an image that cannot be rendered is refused before anything is written
-    _require_room(settings, [int(n) for n in scene.sensors()[0].film().size()], output)
+    _require_room(settings, [int(n) for n in scene_sensor(scene).film().size()], output)
     index = dataset_index(scene, scene_file, defines, settings)
     if settings.res is not None and index["resolution"] != [settings.res, settings.res]:
         raise SceneError(f"{scene_file}: --res {settings.res} had no effect (the scene's film is "

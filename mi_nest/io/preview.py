@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .atomic import atomic_path
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -18,7 +20,6 @@ def write_preview(path: str | Path, image: np.ndarray, vmin: float = 0.0, vmax: 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from .atomic import atomic_path
     with atomic_path(path, ".png") as tmp:
         plt.imsave(tmp, np.clip(np.asarray(image, dtype=np.float32), vmin, vmax), cmap="gray", vmin=vmin, vmax=vmax,
                    format="png")
@@ -46,9 +47,8 @@ def write_comparison(path: str | Path, panels: list[tuple[str, np.ndarray]], tit
         axis.set_xlabel("pixel")
     axes[0].set_ylabel("pixel")
     figure.suptitle(title)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, format="png", dpi=100)
+    with atomic_path(path, ".png") as tmp:
+        figure.savefig(tmp, format="png", dpi=100)
     plt.close(figure)
 
 
@@ -104,7 +104,6 @@ def write_mesh_preview(path: str | Path, nodes: np.ndarray, surface: np.ndarray,
     """Write :func:`mesh_preview_figure` as a PNG (atomically)."""
     import matplotlib.pyplot as plt
 
-    from .atomic import atomic_path
     figure = mesh_preview_figure(nodes, surface, stress, boundary, title)
     with atomic_path(path, ".png") as tmp:
         figure.savefig(tmp, format="png")

@@ -12,7 +12,6 @@ import mitsuba as mi
 import numpy as np
 
 from ..dataset import Dataset
-from ..dataset.format import content_fingerprint
 from ..io.atomic import atomic_path
 from ..physics.aliasing import UNRESOLVED_SHARE
 from ..render import RenderResult, render
@@ -61,7 +60,7 @@ class Checkpoint:
                       "seconds": self.seconds, "history": json.dumps(self.history), "rng": json.dumps(self.rng),
                       "path_range": json.dumps(self.path_range), "config": json.dumps(config.to_dict()),
                       "dataset": str(dataset.directory.resolve()),
-                      "dataset_content": content_fingerprint(dataset.directory, dataset.index)})
+                      "dataset_content": dataset.fingerprint})
         with atomic_path(path, ".npz") as tmp:
             _save_npz(tmp, state)
 
@@ -91,7 +90,7 @@ def _other_run(state, config, dataset):
     if str(state["dataset"]) != str(dataset.directory.resolve()):
         return f"another dataset, {state['dataset']}"
     # Checkpoints from before the content was recorded have none: their dataset may have been replaced too.
-    if str(state.get("dataset_content")) != content_fingerprint(dataset.directory, dataset.index):
+    if str(state.get("dataset_content")) != dataset.fingerprint:
         return f"the dataset at {state['dataset']} as it was before it was replaced or changed"
     return None
 
