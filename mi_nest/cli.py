@@ -463,7 +463,7 @@ def _reconstruct(args):
             raise ValueError(f"{error.problem}; add --restart to start over") from None
         print(result.describe())
         written = write_test_view(scene, result, args.output, dataset)
-    print(f"wrote {Path(args.output).resolve()} (field.npz, reconstruction.json{written})")
+    print(f"wrote {Path(args.output).resolve()} (field.npz, reconstruction.json, trust.npz{written})")
 
 
 def _reconstruction_scene(args, dataset):

@@ -387,7 +387,8 @@ REGULARISED_AND_AVERAGED = {"smoothness": 1e-3, "final_smoothness": 1e-4, "smoot
                             "average_last": 0.6}
 
 
-@pytest.mark.parametrize("extra", [{}, REGULARISED_AND_AVERAGED], ids=["plain", "averaged"])
+@pytest.mark.parametrize("extra", [{}, REGULARISED_AND_AVERAGED, {"equilibrium": 1e-2}],
+                         ids=["plain", "averaged", "equilibrium"])
 def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, monkeypatch, extra):
     options = {**FAST, "iterations": 4, "checkpoint_every": 1, "kind": "grid", **extra}
     whole = optimize(_scene(), tiny_dataset, output=tmp_path / "whole", progress=False, **options)
@@ -405,11 +406,14 @@ def test_an_interrupted_run_resumes_where_it_stopped(tiny_dataset, tmp_path, mon
     monkeypatch.setattr(loop.Run, "step", original)
     resumed = optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **options)
     assert [h["iteration"] for h in resumed.history] == [0, 1, 2, 3]
-    if extra:
+    if "average_last" in extra:
         with np.load(tmp_path / "cut" / "checkpoint.npz") as checkpoint:
             assert int(checkpoint["iterates_averaged"]) == 2
     np.testing.assert_allclose(np.array(resumed.field.parameters()["grid"]), np.array(whole.field.parameters()["grid"]),
                                atol=1e-5)
+    if "equilibrium" in extra:
+        # the mean stress that balances the result is solved and kept with it
+        assert np.abs(np.array(resumed.field.mean)).max() > 0
     with pytest.raises(ValueError, match="another run"):
         optimize(_scene(), tiny_dataset, output=tmp_path / "cut", progress=False, **{**options, "iterations": 5})
 

@@ -161,6 +161,10 @@ class Reconstruction:
             lines.append(f"UNRELIABLE: the dataset's fringes are denser than the pixels in "
                          f"{100 * self.metrics['aliased_share']:.0f}% of the specimen's pixels (over "
                          f"{100 * UNRESOLVED_SHARE:.0f}% loses the phase): expect large errors")
+        trust = self.metrics.get("trust")
+        if trust and trust.get("nodes"):
+            lines.append(f"equilibrium imbalance (where to trust it; trust.npz): median "
+                         f"{trust['uncertainty_median']:.3g}, 95th percentile {trust['uncertainty_p95']:.3g} stress scales per box length")
         if "test_psnr" in self.metrics:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")

@@ -130,6 +130,9 @@ class Regulariser:
     final_smoothness: float | None = None  # the weight at the end, decayed over the finest stage (None: constant)
     smoothness_edge: float | None = None   # finest stage: gradient above which the penalty grows linearly
     average_last: float = 0.0        # share of the run at its end whose iterates are averaged into the result
+    # Grids: weight of the mean squared equilibrium residual |div(s) + grad(p)|^2 inside the specimen, the mean
+    # stress p a free unknown beside the deviator s (reconstruct/equilibrium.py). 0: no equilibrium prior.
+    equilibrium: float = 0.0
     # A grid's RMS (stress scales) up to which the weights hold as given; above it the smoothness falls as the
     # RMS squared and the edge grows with it, so the penalty keeps its share of the loss as the load grows
     # (None: the weights hold at any scale).
@@ -147,6 +150,8 @@ class Regulariser:
             _require_positive("smoothness_edge", self.smoothness_edge,
                               "a positive gradient (stress scales per box width)")
         _require_share("average_last", self.average_last)
+        if not (math.isfinite(self.equilibrium) and self.equilibrium >= 0):
+            raise ValueError(f"equilibrium must be a non-negative weight, got {self.equilibrium}")
 
     def acts_on_gradients(self) -> bool:
         return bool(self.smoothness) or self.smoothness_edge is not None
@@ -157,6 +162,11 @@ class Regulariser:
         weight = self.smoothness if self.final_smoothness is None else \
             self.smoothness * (self.final_smoothness / self.smoothness) ** decayed
         return weight / self._growth(field_rms) ** 2
+
+    def equilibrium_at(self, field_rms: float | None = None) -> float:
+        """The equilibrium weight for a field of RMS ``field_rms`` (used with ``relative_to``): the residual grows
+        with the field as its gradient does, so the weight follows the smoothness's."""
+        return self.equilibrium / self._growth(field_rms) ** 2
 
     def edge_at(self, field_rms: float | None = None) -> float | None:
         """The Charbonnier edge for a field of RMS ``field_rms`` (used with ``relative_to``)."""
@@ -237,6 +247,9 @@ class OptimizeConfig:
         if self.schedule.warm_start and self.model.method == "two-step":
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")
+        if self.field.kind in ("hashgrid", "mlp") and self.regulariser.equilibrium:
+            raise ValueError(f"the equilibrium prior acts on grids only, and this field is a '{self.field.kind}' "
+                             "(give kind='grid', or equilibrium=0)")
         if self.field.kind in ("hashgrid", "mlp") and self.regulariser.acts_on_gradients():
             # Silently ignored, a regulariser the user asked for would leave them comparing unlike runs.
             raise ValueError(f"the smoothness regulariser acts on grids only, and this field is a "

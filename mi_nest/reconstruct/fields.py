@@ -24,6 +24,7 @@ import numpy as np
 
 from ..fields.base import StressField
 from ..io.grid import grid_nodes
+from . import equilibrium
 from .config import FieldConfig, OptimizeConfig, Regulariser
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
@@ -114,6 +115,12 @@ class TrainableField(StressField):
         has no gradient to penalise."""
         return None
 
+    def equilibrium_penalty(self, weight: float, stencil: equilibrium.CellStencil) -> mi.Float | None:
+        """``weight`` times the mean squared equilibrium residual over ``stencil``'s cells
+        (:mod:`~mi_nest.reconstruct.equilibrium`); None where the weight is 0 or the representation carries no
+        mean stress."""
+        return None
+
     def state(self) -> dict:
         """Everything needed to rebuild the field, as NumPy arrays and plain values."""
         return {"kind": self.kind, "config": asdict(self.config), "bbox_min": self.bbox_min,
@@ -156,6 +163,9 @@ class DeviatoricGrid(TrainableField):
         self._texel_scale = (nodes - 1) / nodes
         self._texel_offset = 0.5 / nodes
         self._pairs = None
+        # The mean stress at the nodes (stress scales) that balances the deviator where equilibrium is a prior:
+        # solved from the deviator, not optimised, and never in the images.
+        self.mean = None
 
     def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         uvw = dr.fma(self.unit_coordinates(p), self._texel_scale, self._texel_offset)
@@ -166,6 +176,9 @@ class DeviatoricGrid(TrainableField):
 
     def assign(self, values: dict) -> None:
         self.texture.set_tensor(values["grid"])
+
+    def state(self) -> dict:
+        return {**super().state(), **({} if self.mean is None else {"mean": np.array(self.mean)})}
 
     def rms(self) -> float:
         """Root mean square of the stored components over the nodes (stress scales)."""
@@ -186,6 +199,13 @@ class DeviatoricGrid(TrainableField):
         edge_squared = None if edge is None else dr.opaque(mi.Float, edge ** 2)
         return dr.custom(_Smoothness, self.texture.tensor().array, self._pairs, self.shape,
                          float(self.config.resolution - 1), dr.opaque(mi.Float, weight), edge_squared)
+
+    def equilibrium_penalty(self, weight: float, stencil: equilibrium.CellStencil) -> mi.Float | None:
+        if weight == 0 or self.mean is None:
+            return None
+        # Opaque: a weight that follows the field's scale would rebuild the kernels.
+        return equilibrium.penalty(self.texture.tensor().array, dr.detach(self.mean.array), stencil,
+                                   dr.opaque(mi.Float, weight))
 
     def describe(self) -> str:
         return f"grid {'x'.join(map(str, self.shape))}"
@@ -344,6 +364,8 @@ def field_from_state(state: dict) -> TrainableField:
                                 if k not in regulariser_options})
     field = REPRESENTATIONS[kind](config, state["bbox_min"], state["bbox_max"], float(state["stress_scale"]))
     field.load_parameters(state)
+    if "mean" in state:
+        field.mean = mi.TensorXf(np.asarray(state["mean"], dtype=np.float32))
     return field
 
 

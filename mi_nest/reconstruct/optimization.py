@@ -28,6 +28,7 @@ from .config import OptimizeConfig
 from .evaluation import evaluate
 from .fields import settle
 from .loop import Run
+from .trust import TRUST_FILE, trust_map
 
 
 def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, output: str | Path | None = None,
@@ -88,8 +89,12 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         aliasing = dataset.index.get("fringe_aliasing")
         if aliasing:
             result.metrics["aliased_share"] = aliasing["mean_fraction"]
+        trust = trust_map(scene, dataset, result.field, run.integrator(), config.optimiser.mask,
+                          config.reporting.evaluate_views)
+        result.metrics["trust"] = trust.summary()
         if output is not None:
             result.save(output)
+            trust.save(Path(output) / TRUST_FILE)
     return result
 
 

@@ -1,0 +1,77 @@
+"""Does a reconstruction's trust map rank its actual error? (issue 34, "where to trust it")
+
+For each finished reconstruction given (``mi-nest reconstruct`` output directories of simulated datasets, such as
+the accuracy suite's), computes its trust map (``mi_nest.reconstruct.trust``) and the deviatoric error norm against
+the field the dataset was simulated from at the map's nodes inside the specimen, and prints the Spearman rank
+correlation of each trust term and of the uncertainty with the error, with the CPU and the seconds the map took.
+
+    python benchmarks/trust_ranking.py experiments/out/accuracy_suite/accuracy_suite/*
+
+Writes ``experiments/results/trust_ranking.csv``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import spearmanr
+
+import mi_nest  # noqa: F401  (sets the variant)
+from mi_nest import occupancy
+from mi_nest.dataset import Dataset
+from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
+from mi_nest.reconstruct import Reconstruction
+from mi_nest.reconstruct.trust import error_map, trust_map
+from mi_nest.scene import specimen_shapes
+from reconstruction import cpu_name
+
+HERE = Path(__file__).resolve().parents[1]
+TERMS = ("imbalance", "heldout_residual", "coverage", "direction_spread")
+
+
+def rank(directory: Path) -> dict:
+    result = Reconstruction.load(directory)
+    dataset = Dataset(result.source["dataset"])
+    source = dataset.index.get("source") or {}
+    scene = recorded_scene(source).load()
+    truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
+    start = time.perf_counter()
+    trust = trust_map(scene, dataset, result.field, result.integrator(scene), result.config.optimiser.mask)
+    seconds = time.perf_counter() - start
+    nodes = trust.nodes()
+    inside = occupancy.inside(scene, specimen_shapes(scene), nodes)
+    error = error_map(result.field, truth, nodes[inside])
+    row = {"case": directory.name, "nodes": int(inside.sum()), "trust_s": round(seconds, 1),
+           "deviatoric_error": round(result.metrics.get("deviatoric_error", float("nan")), 4),
+           "error_cv": round(float(np.std(error) / np.mean(error)), 3)}
+    for term in TERMS:
+        values = getattr(trust, term).ravel()[inside]
+        finite = np.isfinite(values)
+        row[f"rho_{term}"] = round(float(spearmanr(values[finite], error[finite]).statistic), 3)
+    row["cpu"] = cpu_name()
+    return row
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("results", nargs="+", type=Path)
+    parser.add_argument("--csv", type=Path, default=HERE / "experiments" / "results" / "trust_ranking.csv")
+    args = parser.parse_args()
+    rows = []
+    for directory in args.results:
+        row = rank(directory)
+        print(" ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+        rows.append(row)
+    args.csv.parent.mkdir(parents=True, exist_ok=True)
+    with open(args.csv, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {args.csv}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,260 @@
+"""Where to trust a reconstruction, node by node: how far the field is from balancing itself, how the data
+observe each node, and how well the field explains the views it was not fitted to.
+
+Four things are measured on a lattice over the specimen (a grid's own nodes):
+
+- ``imbalance``: the equilibrium residual ``|div(s) + grad(p)|`` the reconstructed deviator ``s`` leaves with
+  the mean stress ``p`` that balances it best (:mod:`~mi_nest.reconstruct.equilibrium`), the largest of the
+  cells around the node, averaged over its 3 x 3 x 3 neighbourhood (stress scales per box length). A true field
+  leaves only its discretisation; a wrong one does not balance. This is the ``uncertainty``: on the accuracy
+  suite's cases it ranks the actual error with Spearman correlations of 0.50 to 0.74
+  (``benchmarks/trust_ranking.py``, docs/reconstruction.md);
+
+- ``coverage``: the share of the training views whose specimen pixels have a ray through the node;
+- ``direction_spread``: ``3 lambda_min`` of the mean ``d d^T`` over those rays (1: directions from all around,
+  0: all in one plane, where the tomography cannot tell some components apart);
+- ``heldout_residual``: the mean L1 error of the 16 intensities of the held-out pixels whose rays cross the node.
+
+Rays are the cameras' straight lines, sampled along the box at a fraction of the node spacing and splatted to
+the nearest node; refraction bends them in the data, not here (a measure of observation, not a render).
+The uncertainty is relative (a ranking of the nodes by how far to trust them), not an error bar in MPa; the
+observation terms and the held-out residual ranked the error far worse (0.01 to 0.48) and are reported beside it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..arrays import device_array
+from ..dataset import Dataset
+from ..io.atomic import atomic_path
+from ..io.grid import grid_nodes
+from ..physics import MEASUREMENTS
+from . import equilibrium
+from .evaluation import predict_view, view_mask
+from .fields import TrainableField, grid_shape
+from .rays import ViewRays
+
+# Training views sampled for the coverage (evenly over the split): enough to see every direction of the rig.
+COVERAGE_VIEWS = 48
+# Lattice nodes along the longest axis for representations without nodes of their own (MLPs, hash grids).
+LATTICE = 48
+# Samples along each ray per node spacing.
+SAMPLES_PER_SPACING = 2
+TRUST_FILE = "trust.npz"
+
+
+@dataclass
+class TrustMap:
+    """Per-node trust on a lattice ``shape = (nx, ny, nz)`` over ``bbox``; arrays (nz, ny, nx), NaN outside
+    what any ray reached."""
+    bbox_min: np.ndarray
+    bbox_max: np.ndarray
+    coverage: np.ndarray
+    direction_spread: np.ndarray
+    heldout_residual: np.ndarray
+    imbalance: np.ndarray
+    view_residuals: list          # the held-out views' mean L1 residual over their specimen pixels
+    views: list                   # their rotation positions
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        nz, ny, nx = self.coverage.shape
+        return nx, ny, nz
+
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """How far to trust each node, higher less: its :attr:`imbalance`."""
+        return self.imbalance
+
+    def nodes(self) -> np.ndarray:
+        """Node positions (nz * ny * nx, 3), x fastest."""
+        return grid_nodes(self.bbox_min, self.bbox_max, self.shape)
+
+    def at(self, points: np.ndarray, name: str = "uncertainty") -> np.ndarray:
+        """``name`` at ``points`` (N, 3), from the nearest node."""
+        values = getattr(self, name)
+        low, high = np.asarray(self.bbox_min), np.asarray(self.bbox_max)
+        counts = np.array(self.shape)
+        index = np.rint((np.asarray(points) - low) / (high - low) * (counts - 1)).astype(int)
+        index = np.clip(index, 0, counts - 1)
+        return values[index[:, 2], index[:, 1], index[:, 0]]
+
+    def summary(self) -> dict:
+        """What ``reconstruction.json`` records."""
+        seen = np.isfinite(self.imbalance)
+        uncertainty = self.uncertainty[seen]
+        return {"nodes": int(seen.sum()),
+                "uncertainty_median": _quantile(uncertainty, 0.5), "uncertainty_p95": _quantile(uncertainty, 0.95),
+                "coverage_median": _quantile(self.coverage[seen], 0.5),
+                "poorly_observed_share": float(np.mean(self.direction_spread[seen] < 0.1)) if seen.any() else 0.0,
+                "heldout_residual_by_view": dict(zip(map(str, self.views), np.round(self.view_residuals, 5)))}
+
+    def save(self, path: str | Path) -> None:
+        with atomic_path(Path(path), ".npz") as tmp:
+            np.savez_compressed(tmp, bbox_min=self.bbox_min, bbox_max=self.bbox_max, coverage=self.coverage,
+                                direction_spread=self.direction_spread, heldout_residual=self.heldout_residual,
+                                imbalance=self.imbalance,
+                                view_residuals=np.asarray(self.view_residuals), views=np.asarray(self.views))
+
+    @classmethod
+    def load(cls, path: str | Path) -> TrustMap:
+        with np.load(path) as data:
+            return cls(data["bbox_min"], data["bbox_max"], data["coverage"], data["direction_spread"],
+                       data["heldout_residual"], data["imbalance"], data["view_residuals"].tolist(),
+                       data["views"].tolist())
+
+
+def _quantile(values, q):
+    return float(np.quantile(values, q)) if values.size else float("nan")
+
+
+def lattice_of(field: TrainableField) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int]]:
+    """The nodes trust is measured on: a grid's own, else a lattice of :data:`LATTICE` along the longest axis."""
+    shape = getattr(field, "shape", None) or grid_shape(LATTICE, field.bbox_max - field.bbox_min)
+    return np.asarray(field.bbox_min, float), np.asarray(field.bbox_max, float), tuple(shape)
+
+
+def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, integrator: mi.Integrator,
+              mask: str | None = "mask.dolp", heldout_views: int = 16) -> TrustMap:
+    """The :class:`TrustMap` of ``field`` reconstructed from ``dataset`` (``integrator`` renders it)."""
+    low, high, shape = lattice_of(field)
+    splat = _Splat(low, high, shape)
+    view_rays = ViewRays(scene, dataset)
+    train = np.asarray(dataset.split("train"))
+    chosen = train[np.unique(np.linspace(0, len(train) - 1, min(COVERAGE_VIEWS, len(train))).astype(int))]
+    seen_by = np.zeros(splat.nodes)
+    directions = np.zeros((splat.nodes, 6))
+    for position in chosen:
+        rays, _ = view_rays.view(int(position))
+        selected = _pixels(dataset, int(position), mask)
+        hits, outer = splat.directions(rays, selected)
+        seen_by += hits > 0
+        directions += outer
+    residual_sum = np.zeros(splat.nodes)
+    weight_sum = np.zeros(splat.nodes)
+    view_residuals, views = [], []
+    for position in dataset.split("test")[:heldout_views]:
+        predicted = predict_view(scene, view_rays, integrator, position, field)
+        error = np.abs(predicted - dataset.measurements(position).reshape(-1, len(MEASUREMENTS))).mean(axis=1)
+        selected = _pixels(dataset, position, mask)
+        rays, _ = view_rays.view(position)
+        total, weight = splat.values(rays, selected, error)
+        residual_sum += total
+        weight_sum += weight
+        view_residuals.append(float(error[selected].mean()) if selected.any() else float("nan"))
+        views.append(int(position))
+    nx, ny, nz = shape
+    samples = np.maximum(directions[:, 0] + directions[:, 1] + directions[:, 2], 1e-30)
+    tensor = directions[:, [0, 3, 5, 3, 1, 4, 5, 4, 2]].reshape(-1, 3, 3) / samples[:, None, None]
+    spread = 3.0 * np.clip(np.linalg.eigvalsh(tensor)[:, 0], 0.0, None)
+    reached = (directions[:, 0] + directions[:, 1] + directions[:, 2]) > 0
+    residual = np.where(weight_sum > 0, residual_sum / np.maximum(weight_sum, 1e-30), np.nan)
+    coverage = np.where(reached, seen_by / max(len(chosen), 1), 0.0)
+    return TrustMap(low, high, coverage.reshape(nz, ny, nx), np.where(reached, spread, 0.0).reshape(nz, ny, nx),
+                    residual.reshape(nz, ny, nx), imbalance(scene, field, shape), view_residuals, views)
+
+
+def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int]) -> np.ndarray:
+    """The :attr:`TrustMap.imbalance` of ``field`` on the lattice ``shape`` over its box (NaN at nodes no cell
+    inside the specimen touches)."""
+    from scipy.ndimage import uniform_filter
+    from ..fields.base import sample
+    from ..occupancy import inside
+    from ..scene import specimen_shapes
+    from .fields import deviatoric_part
+    nx, ny, nz = shape
+    if getattr(field, "shape", None) == tuple(shape):
+        deviator = np.array(field.texture.tensor(), dtype=np.float64)
+    else:
+        stress = deviatoric_part(sample(field, grid_nodes(field.bbox_min, field.bbox_max, shape)))
+        deviator = (stress[:, [0, 1, 3, 4, 5]] / field.stress_scale).reshape(nz, ny, nx, 5)
+    centres = equilibrium.cell_centres(shape, field.bbox_min, field.bbox_max)
+    occupied = inside(scene, specimen_shapes(scene), centres.reshape(-1, 3)).reshape(centres.shape[:3])
+    stencil = equilibrium.CellStencil.of(shape, field.bbox_max - field.bbox_min, occupied)
+    mean, _ = equilibrium.MeanStressSolver(stencil).solve(deviator)
+    cells = np.full(centres.shape[:3], np.nan)
+    cells[occupied] = np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1))
+    # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
+    padded = np.pad(cells, 1, constant_values=np.nan)
+    corners = np.stack([padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    touched = np.isfinite(corners).any(axis=0)
+    largest = np.where(touched, np.nanmax(np.where(np.isfinite(corners), corners, -np.inf), axis=0), 0.0)
+    # The neighbourhood's mean over the touched nodes only.
+    total = uniform_filter(largest, 3, mode="constant")
+    count = uniform_filter(touched.astype(float), 3, mode="constant")
+    return np.where(touched, total / np.maximum(count, 1e-12), np.nan)
+
+
+def _pixels(dataset, position, mask):
+    selected = view_mask(dataset, position, mask)
+    width, height = dataset.resolution
+    return np.ones(width * height, bool) if selected is None else selected
+
+
+class _Splat:
+    """Straight rays sampled across a box and deposited on its nearest lattice nodes."""
+
+    def __init__(self, low, high, shape):
+        self.low, self.high, self.shape = low, high, shape
+        self.nodes = int(np.prod(shape))
+        spacing = float(np.min((high - low) / (np.array(shape) - 1)))
+        self.step = spacing / SAMPLES_PER_SPACING
+        self.count = int(np.ceil(np.linalg.norm(high - low) / self.step)) + 1
+
+    def _samples(self, rays: mi.Ray3f, selected: np.ndarray):
+        """Per sample along the selected rays inside the box: node index, the ray's index, its direction."""
+        index = np.flatnonzero(selected).astype(np.uint32)
+        ray = dr.gather(mi.Ray3f, rays, device_array(mi.UInt32, index, np.uint32))
+        box = mi.BoundingBox3f(mi.ScalarPoint3f(self.low), mi.ScalarPoint3f(self.high))
+        hit, near, far = box.ray_intersect(ray)
+        near = dr.maximum(near, 0.0)
+        step = dr.arange(mi.UInt32, self.count)
+        which = dr.repeat(dr.arange(mi.UInt32, len(index)), self.count) if len(index) else mi.UInt32()
+        along = dr.tile(step, len(index))
+        t = dr.gather(mi.Float, near, which) + (mi.Float(along) + 0.5) * self.step
+        valid = dr.gather(mi.Bool, hit, which) & (t < dr.gather(mi.Float, far, which))
+        o, d = dr.gather(mi.Point3f, ray.o, which), dr.gather(mi.Vector3f, ray.d, which)
+        p = o + t * d
+        last = [float(n - 1) for n in self.shape]
+        u = (p - mi.ScalarPoint3f(self.low)) / mi.ScalarVector3f(self.high - self.low)
+        i = [mi.UInt32(dr.clip(dr.round(u[axis] * last[axis]), 0.0, last[axis])) for axis in range(3)]
+        node = i[0] + self.shape[0] * (i[1] + self.shape[1] * i[2])
+        return node, which, d, valid
+
+    def directions(self, rays, selected):
+        """Per node: samples deposited, and the sum of ``d d^T`` (xx, yy, zz, xy, yz, zx)."""
+        if not selected.any():
+            return np.zeros(self.nodes), np.zeros((self.nodes, 6))
+        node, _, d, valid = self._samples(rays, selected)
+        hits = dr.zeros(mi.Float, self.nodes)
+        dr.scatter_reduce(dr.ReduceOp.Add, hits, 1.0, node, valid)
+        outer = []
+        for a, b in ((0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (2, 0)):
+            target = dr.zeros(mi.Float, self.nodes)
+            dr.scatter_reduce(dr.ReduceOp.Add, target, d[a] * d[b], node, valid)
+            outer.append(np.array(target))
+        return np.array(hits), np.stack(outer, axis=1)
+
+    def values(self, rays, selected, per_ray):
+        """Per node: the sum of the rays' values over the samples deposited, and the samples' count."""
+        if not selected.any():
+            return np.zeros(self.nodes), np.zeros(self.nodes)
+        node, which, _, valid = self._samples(rays, selected)
+        value = dr.gather(mi.Float, device_array(mi.Float, per_ray[selected].astype(np.float32)), which)
+        total, weight = dr.zeros(mi.Float, self.nodes), dr.zeros(mi.Float, self.nodes)
+        dr.scatter_reduce(dr.ReduceOp.Add, total, value, node, valid)
+        dr.scatter_reduce(dr.ReduceOp.Add, weight, 1.0, node, valid)
+        return np.array(total), np.array(weight)
+
+
+def error_map(field: TrainableField, truth, nodes: np.ndarray) -> np.ndarray:
+    """The deviatoric error norm ``|s - s_true|`` (MPa) at ``nodes``: what the uncertainty should rank."""
+    from ..fields.base import sample
+    from .fields import deviatoric_part
+    from .metrics import tensor_norm
+    return tensor_norm(deviatoric_part(sample(field, nodes)) - deviatoric_part(sample(truth, nodes)))

@@ -1,0 +1,75 @@
+"""Where to trust a reconstruction: the trust map's terms against what they must be."""
+import json
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.dataset import Dataset, SimulationSettings, simulate
+from mi_nest.fields.analytic import DiskCompressionField
+from mi_nest.fields.base import sample
+from mi_nest.io.grid import grid_nodes
+from mi_nest.reconstruct import FieldConfig, optimize
+from mi_nest.reconstruct.fields import DeviatoricGrid, deviatoric_part
+from mi_nest.reconstruct.trust import TRUST_FILE, TrustMap, imbalance, trust_map
+
+
+def _disk_grid(planted: bool) -> DeviatoricGrid:
+    truth = DiskCompressionField(load=100, contact_width=4)
+    grid = DeviatoricGrid(FieldConfig(kind="grid", resolution=32), np.array([-20.0, -20.0, -3.0]),
+                          np.array([20.0, 20.0, 3.0]), 0.5)
+    nx, ny, nz = grid.shape
+    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, grid.shape)
+    values = deviatoric_part(sample(truth, nodes))[:, [0, 1, 3, 4, 5]] / grid.stress_scale
+    if planted:
+        values = values * (1.0 + (nodes[:, :1] + 20.0) / 40.0)
+    grid.assign({"grid": mi.TensorXf(values.reshape(nz, ny, nx, 5).astype(np.float32))})
+    return grid
+
+
+def test_a_balanced_field_is_trusted_more_than_a_planted_imbalance():
+    scene = mi_nest.load_scene("disk_compression", res=8, load=100, contact_width=4)
+    exact, planted = (imbalance(scene, grid, grid.shape) for grid in (_disk_grid(False), _disk_grid(True)))
+    centre = np.s_[:, 8:24, 8:24]      # away from the contacts, where the grid resolves the truth
+    assert np.nanmedian(exact[centre]) < np.nanmedian(planted[centre]) / 3
+    assert np.isnan(exact[:, 0, 0]).all()       # the box's corners lie outside the disk
+
+
+@pytest.fixture(scope="module")
+def one_axis_and_two_axes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("trust")
+    data = {}
+    for name, elevations in (("one", 1), ("two", 3)):
+        settings = SimulationSettings(azimuths=6, elevations=elevations, res=16, spp=1, test_fraction=0.2)
+        simulate("disk_compression", root / name, settings, progress=False, defines={"load": 20})
+        data[name] = root / name
+    return data
+
+
+def test_rays_from_one_rotation_axis_span_a_plane_and_two_axes_do_not(one_axis_and_two_axes):
+    spreads = {}
+    for name, directory in one_axis_and_two_axes.items():
+        dataset = Dataset(directory)
+        scene = mi_nest.load_scene("disk_compression", res=16, load=20)
+        result = optimize(scene, dataset, progress=False, iterations=2, batch_size=64, resolution=8,
+                          evaluate_views=1)
+        trust = trust_map(scene, dataset, result.field, result.integrator(scene))
+        seen = trust.coverage > 0
+        assert 0 <= trust.coverage.min() and trust.coverage.max() <= 1
+        spreads[name] = float(np.median(trust.direction_spread[seen]))
+    assert spreads["one"] < 1e-3       # every ray lies in the plane normal to the rotation axis
+    assert spreads["two"] > 0.05
+
+
+def test_a_run_writes_its_trust_map_and_summary(one_axis_and_two_axes, tmp_path):
+    directory = one_axis_and_two_axes["two"]
+    scene = mi_nest.load_scene("disk_compression", res=16, load=20)
+    result = optimize(scene, directory, output=tmp_path / "out", progress=False, iterations=2, batch_size=64,
+                      resolution=8, evaluate_views=1)
+    trust = TrustMap.load(tmp_path / "out" / TRUST_FILE)
+    assert trust.imbalance.shape == result.field.texture.tensor().shape[:3]
+    summary = json.loads((tmp_path / "out" / "reconstruction.json").read_text())["metrics"]["trust"]
+    assert summary["nodes"] == int(np.isfinite(trust.imbalance).sum()) > 0
+    assert np.isfinite(summary["uncertainty_median"])
+    assert "equilibrium imbalance" in result.describe()
