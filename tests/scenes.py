@@ -7,6 +7,16 @@ import mi_nest  # noqa: F401  (selects the variant, registers the plugins)
 
 WAVELENGTH = 532.0
 BREWSTER = 50.0
+# A 6 mm cube of uniform stress ``xx = {stress}`` as a scene file's element (a format string).
+UNIFORM_CUBE_XML = """    <shape type="cube">
+        <transform name="to_world"><scale value="3"/></transform>
+        <medium type="stress" name="interior">
+            <float name="stress_optic_coefficient" value="50"/>
+            <string name="model" value="uniform"/>
+            <float name="xx" value="{stress}"/>
+        </medium>
+    </shape>
+"""
 
 
 def medium(model="uniform", C=BREWSTER, **params):

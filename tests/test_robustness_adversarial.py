@@ -17,6 +17,7 @@ from mi_nest.dataset import DatasetError, SimulationSettings, simulate
 from mi_nest.dataset import format as fmt
 from mi_nest.io.exr import ExrFileError
 from mi_nest.rig.config import RigConfigError, parse
+from scenes import UNIFORM_CUBE_XML
 
 try:
     import tomllib
@@ -40,16 +41,8 @@ SCENE_XML = """<scene version="3.0.0">
     </sensor>
     <include filename="part.xml"/>
 </scene>"""
-PART_XML = """<scene version="3.0.0">
-    <shape type="cube">
-        <transform name="to_world"><scale value="3"/></transform>
-        <medium type="stress" name="interior">
-            <float name="stress_optic_coefficient" value="50"/>
-            <string name="model" value="uniform"/>
-            <float name="xx" value="{stress}"/>
-        </medium>
-    </shape>
-</scene>"""
+PART_XML = f"""<scene version="3.0.0">
+{UNIFORM_CUBE_XML}</scene>"""
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 
 
