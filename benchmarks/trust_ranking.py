@@ -24,6 +24,7 @@ from mi_nest import occupancy
 from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
 from mi_nest.reconstruct import Reconstruction
+from mi_nest.reconstruct.evaluation import heldout_predictions
 from mi_nest.reconstruct.trust import error_map, trust_map
 from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
@@ -39,7 +40,9 @@ def rank(directory: Path) -> dict:
     scene = recorded_scene(source).load()
     truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
     start = time.perf_counter()
-    trust = trust_map(scene, dataset, result.field, result.integrator(scene), result.config.optimiser.mask)
+    predictions = heldout_predictions(scene, dataset, result.field, result.integrator(scene),
+                                      result.config.reporting.evaluate_views)
+    trust = trust_map(scene, dataset, result.field, predictions, result.config.optimiser.mask)
     seconds = time.perf_counter() - start
     nodes = trust.nodes()
     inside = occupancy.inside(scene, specimen_shapes(scene), nodes)

@@ -78,7 +78,8 @@ def _balance(field, low, high, inside_nodes, resolution):
     scale = np.sqrt(np.mean(np.sum(deviator[inside] ** 2, axis=1)))
     planted = deviator * (1.0 + (nodes[:, :1] - low[0]) / (high - low).max())
     stencil = equilibrium.CellStencil.of(shape, high - low, _corners_inside(inside.reshape(nz, ny, nx)))
-    return [equilibrium.fit_mean(d.reshape(nz, ny, nx, 5), stencil)[1] / scale for d in (deviator, planted)]
+    solver = equilibrium.MeanStressSolver(stencil)
+    return [solver.solve(d.reshape(nz, ny, nx, 5))[1] / scale for d in (deviator, planted)]
 
 
 def _radius(nodes):

@@ -11,6 +11,7 @@ from mi_nest.fields.analytic import DiskCompressionField
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import FieldConfig, optimize
+from mi_nest.reconstruct.evaluation import heldout_predictions
 from mi_nest.reconstruct.fields import DeviatoricGrid, deviatoric_part
 from mi_nest.reconstruct.trust import TRUST_FILE, TrustMap, imbalance, trust_map
 
@@ -54,7 +55,8 @@ def test_rays_from_one_rotation_axis_span_a_plane_and_two_axes_do_not(one_axis_a
         scene = mi_nest.load_scene("disk_compression", res=16, load=20)
         result = optimize(scene, dataset, progress=False, iterations=2, batch_size=64, resolution=8,
                           evaluate_views=1)
-        trust = trust_map(scene, dataset, result.field, result.integrator(scene))
+        predictions = heldout_predictions(scene, dataset, result.field, result.integrator(scene), 1)
+        trust = trust_map(scene, dataset, result.field, predictions)
         seen = trust.coverage > 0
         assert 0 <= trust.coverage.min() and trust.coverage.max() <= 1
         spreads[name] = float(np.median(trust.direction_spread[seen]))

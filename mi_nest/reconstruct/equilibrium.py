@@ -52,6 +52,16 @@ class CellStencil:
                    (i + (nx - 1) * (j + (ny - 1) * k)).astype(np.uint32), spacing)
 
 
+def specimen_stencil(scene: mi.Scene, shape: tuple[int, int, int], bbox_min: np.ndarray,
+                     bbox_max: np.ndarray) -> CellStencil:
+    """The stencil of a node grid's cells whose centres lie inside ``scene``'s specimens."""
+    from ..occupancy import inside
+    from ..scene import specimen_shapes
+    centres = cell_centres(shape, bbox_min, bbox_max)
+    occupied = inside(scene, specimen_shapes(scene), centres.reshape(-1, 3)).reshape(centres.shape[:3])
+    return CellStencil.of(shape, np.asarray(bbox_max) - np.asarray(bbox_min), occupied)
+
+
 def cell_centres(shape: tuple[int, int, int], bbox_min: np.ndarray, bbox_max: np.ndarray) -> np.ndarray:
     """The centres (mm) of a node grid's cells, (nz - 1, ny - 1, nx - 1, 3), x fastest."""
     axes = [np.linspace(lo, hi, n)[:-1] + (hi - lo) / (n - 1) / 2 for lo, hi, n in zip(bbox_min, bbox_max, shape)]
@@ -216,11 +226,6 @@ class MeanStressSolver:
         mean[self.touched] = solution
         left = unbalanced + self.gradient @ solution
         return mean.reshape(nz, ny, nx), float(np.sqrt(np.sum(left ** 2) / len(self.stencil.corners)))
-
-
-def fit_mean(deviator: np.ndarray, stencil: CellStencil) -> tuple[np.ndarray, float]:
-    """:meth:`MeanStressSolver.solve` for one deviator."""
-    return MeanStressSolver(stencil).solve(deviator)
 
 
 def _gradient_matrix(stencil: CellStencil):

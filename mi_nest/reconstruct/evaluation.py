@@ -53,10 +53,10 @@ def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, i
     return total / max(count, 1)
 
 
-def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
-             truth: StressField | None, views: int, mask: str | None,
-             shapes: list) -> dict:
-    """Errors against ``truth`` over the occupied volume, and PSNR of up to ``views`` held-out rotations."""
+def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, truth: StressField | None,
+             predictions: dict[int, np.ndarray], mask: str | None, shapes: list) -> dict:
+    """Errors against ``truth`` over the occupied volume, and the PSNR of the held-out rotations' ``predictions``
+    (:func:`heldout_predictions`)."""
     results = {}
     if truth is not None:
         points = metrics.evaluation_points(scene, shapes)
@@ -66,10 +66,15 @@ def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integ
         floor = metrics.grid_floor(stress_field, truth, points)
         if floor is not None:
             results["grid_floor"] = floor
-    test = dataset.split("test")[:views]
-    if test:
-        view_rays = ViewRays(scene, dataset)
-        values = [view_psnr(predict_view(scene, view_rays, integrator, position, stress_field), dataset, position,
-                            mask) for position in test]
-        results.update(test_psnr=float(np.mean(values)), test_views=len(test))
+    if predictions:
+        values = [view_psnr(predicted, dataset, position, mask) for position, predicted in predictions.items()]
+        results.update(test_psnr=float(np.mean(values)), test_views=len(values))
     return results
+
+
+def heldout_predictions(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
+                        views: int) -> dict[int, np.ndarray]:
+    """``{position: (H * W, 16) intensities}`` of up to ``views`` held-out rotations (:func:`predict_view`)."""
+    view_rays = ViewRays(scene, dataset)
+    return {position: predict_view(scene, view_rays, integrator, position, stress_field)
+            for position in dataset.split("test")[:views]}

@@ -23,7 +23,6 @@ import numpy as np
 from .. import interrupts
 from ..dataset import Dataset
 from ..fields.base import sample
-from ..occupancy import inside
 from ..render import require_memory
 from ..scene import scene_origin, specimen_shapes
 from . import equilibrium, metrics
@@ -306,10 +305,8 @@ class Run:
         the deviator is then its gradient with the mean held); the grid's cells whose centres lie inside the
         specimen are where it is asked."""
         if self._balance is None or self._balance.stencil.shape != self.field.shape:
-            centres = equilibrium.cell_centres(self.field.shape, self.field.bbox_min, self.field.bbox_max)
-            occupied = inside(self.scene, specimen_shapes(self.scene), centres.reshape(-1, 3))
-            self._balance = equilibrium.MeanStressSolver(equilibrium.CellStencil.of(
-                self.field.shape, self.field.bbox_max - self.field.bbox_min, occupied.reshape(centres.shape[:3])))
+            self._balance = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(
+                self.scene, self.field.shape, self.field.bbox_min, self.field.bbox_max))
         # A refined grid comes without one; a resumed run keeps its checkpoint's, as the run it resumes did.
         if self.field.mean is None or self.iteration % BALANCE_EVERY == 0:
             start = None if self.field.mean is None else np.array(self.field.mean)

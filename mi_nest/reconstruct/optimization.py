@@ -25,7 +25,7 @@ from ..scene import load_scene, scene_file, specimen_bounds, specimen_media, spe
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .config import OptimizeConfig
-from .evaluation import evaluate
+from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
 from .trust import TRUST_FILE, trust_map
@@ -84,13 +84,15 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         with interrupts.deferred():
             run.loop()
         result = run.result()
-        result.metrics.update(evaluate(scene, dataset, result.field, run.integrator(), truth,
-                                       config.reporting.evaluate_views, config.optimiser.mask, shapes))
+        # The held-out views rendered once: for the PSNR and for the trust map's residuals.
+        predictions = heldout_predictions(scene, dataset, result.field, run.integrator(),
+                                          config.reporting.evaluate_views)
+        result.metrics.update(evaluate(scene, dataset, result.field, truth, predictions, config.optimiser.mask,
+                                       shapes))
         aliasing = dataset.index.get("fringe_aliasing")
         if aliasing:
             result.metrics["aliased_share"] = aliasing["mean_fraction"]
-        trust = trust_map(scene, dataset, result.field, run.integrator(), config.optimiser.mask,
-                          config.reporting.evaluate_views)
+        trust = trust_map(scene, dataset, result.field, predictions, config.optimiser.mask)
         result.metrics["trust"] = trust.summary()
         if output is not None:
             result.save(output)

@@ -29,14 +29,18 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from scipy.ndimage import uniform_filter
+
 from ..arrays import device_array
 from ..dataset import Dataset
+from ..fields.base import sample
 from ..io.atomic import atomic_path
 from ..io.grid import grid_nodes
 from ..physics import MEASUREMENTS
 from . import equilibrium
-from .evaluation import predict_view, view_mask
-from .fields import TrainableField, grid_shape
+from .evaluation import view_mask
+from .fields import TrainableField, deviatoric_part, grid_shape
+from .metrics import tensor_norm
 from .rays import ViewRays
 
 # Training views sampled for the coverage (evenly over the split): enough to see every direction of the rig.
@@ -119,9 +123,10 @@ def lattice_of(field: TrainableField) -> tuple[np.ndarray, np.ndarray, tuple[int
     return np.asarray(field.bbox_min, float), np.asarray(field.bbox_max, float), tuple(shape)
 
 
-def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, integrator: mi.Integrator,
-              mask: str | None = "mask.dolp", heldout_views: int = 16) -> TrustMap:
-    """The :class:`TrustMap` of ``field`` reconstructed from ``dataset`` (``integrator`` renders it)."""
+def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, predictions: dict[int, np.ndarray],
+              mask: str | None = "mask.dolp") -> TrustMap:
+    """The :class:`TrustMap` of ``field`` reconstructed from ``dataset``; ``predictions``: its intensities in the
+    held-out views (:func:`~mi_nest.reconstruct.evaluation.heldout_predictions`)."""
     low, high, shape = lattice_of(field)
     splat = _Splat(low, high, shape)
     view_rays = ViewRays(scene, dataset)
@@ -138,8 +143,7 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, integrat
     residual_sum = np.zeros(splat.nodes)
     weight_sum = np.zeros(splat.nodes)
     view_residuals, views = [], []
-    for position in dataset.split("test")[:heldout_views]:
-        predicted = predict_view(scene, view_rays, integrator, position, field)
+    for position, predicted in predictions.items():
         error = np.abs(predicted - dataset.measurements(position).reshape(-1, len(MEASUREMENTS))).mean(axis=1)
         selected = _pixels(dataset, position, mask)
         rays, _ = view_rays.view(position)
@@ -149,10 +153,10 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, integrat
         view_residuals.append(float(error[selected].mean()) if selected.any() else float("nan"))
         views.append(int(position))
     nx, ny, nz = shape
-    samples = np.maximum(directions[:, 0] + directions[:, 1] + directions[:, 2], 1e-30)
-    tensor = directions[:, [0, 3, 5, 3, 1, 4, 5, 4, 2]].reshape(-1, 3, 3) / samples[:, None, None]
+    samples = directions[:, :3].sum(axis=1)         # the trace of a sum of d d^T: the samples deposited
+    reached = samples > 0
+    tensor = directions[:, [0, 3, 5, 3, 1, 4, 5, 4, 2]].reshape(-1, 3, 3) / np.maximum(samples, 1e-30)[:, None, None]
     spread = 3.0 * np.clip(np.linalg.eigvalsh(tensor)[:, 0], 0.0, None)
-    reached = (directions[:, 0] + directions[:, 1] + directions[:, 2]) > 0
     residual = np.where(weight_sum > 0, residual_sum / np.maximum(weight_sum, 1e-30), np.nan)
     coverage = np.where(reached, seen_by / max(len(chosen), 1), 0.0)
     return TrustMap(low, high, coverage.reshape(nz, ny, nx), np.where(reached, spread, 0.0).reshape(nz, ny, nx),
@@ -162,23 +166,16 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, integrat
 def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int]) -> np.ndarray:
     """The :attr:`TrustMap.imbalance` of ``field`` on the lattice ``shape`` over its box (NaN at nodes no cell
     inside the specimen touches)."""
-    from scipy.ndimage import uniform_filter
-    from ..fields.base import sample
-    from ..occupancy import inside
-    from ..scene import specimen_shapes
-    from .fields import deviatoric_part
     nx, ny, nz = shape
     if getattr(field, "shape", None) == tuple(shape):
         deviator = np.array(field.texture.tensor(), dtype=np.float64)
     else:
         stress = deviatoric_part(sample(field, grid_nodes(field.bbox_min, field.bbox_max, shape)))
         deviator = (stress[:, [0, 1, 3, 4, 5]] / field.stress_scale).reshape(nz, ny, nx, 5)
-    centres = equilibrium.cell_centres(shape, field.bbox_min, field.bbox_max)
-    occupied = inside(scene, specimen_shapes(scene), centres.reshape(-1, 3)).reshape(centres.shape[:3])
-    stencil = equilibrium.CellStencil.of(shape, field.bbox_max - field.bbox_min, occupied)
+    stencil = equilibrium.specimen_stencil(scene, shape, field.bbox_min, field.bbox_max)
     mean, _ = equilibrium.MeanStressSolver(stencil).solve(deviator)
-    cells = np.full(centres.shape[:3], np.nan)
-    cells[occupied] = np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1))
+    cells = np.full((nz - 1, ny - 1, nx - 1), np.nan)
+    np.put(cells, stencil.cells, np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1)))
     # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
     padded = np.pad(cells, 1, constant_values=np.nan)
     corners = np.stack([padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
@@ -254,7 +251,4 @@ class _Splat:
 
 def error_map(field: TrainableField, truth, nodes: np.ndarray) -> np.ndarray:
     """The deviatoric error norm ``|s - s_true|`` (MPa) at ``nodes``: what the uncertainty should rank."""
-    from ..fields.base import sample
-    from .fields import deviatoric_part
-    from .metrics import tensor_norm
     return tensor_norm(deviatoric_part(sample(field, nodes)) - deviatoric_part(sample(truth, nodes)))
