@@ -4,6 +4,8 @@ For each finished reconstruction given (``mi-nest reconstruct`` output directori
 the accuracy suite's), computes its trust map (``mi_nest.reconstruct.trust``) and the deviatoric error norm against
 the field the dataset was simulated from at the map's nodes inside the specimen, and prints the Spearman rank
 correlation of each trust term and of the uncertainty with the error, with the CPU and the seconds the map took.
+A result made before runs wrote their trust map gets its ``trust.npz`` (what ``mi-nest principal`` and ``export``
+show).
 
     python benchmarks/trust_ranking.py experiments/out/accuracy_suite/accuracy_suite/*
 
@@ -25,7 +27,7 @@ from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
 from mi_nest.reconstruct import Reconstruction
 from mi_nest.reconstruct.evaluation import heldout_predictions
-from mi_nest.reconstruct.trust import error_map, trust_map
+from mi_nest.reconstruct.trust import TRUST_FILE, error_map, trust_map
 from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
 
@@ -44,6 +46,8 @@ def rank(directory: Path) -> dict:
                                       result.config.reporting.evaluate_views)
     trust = trust_map(scene, dataset, result.field, predictions, result.config.optimiser.mask)
     seconds = time.perf_counter() - start
+    if not (directory / TRUST_FILE).exists():
+        trust.save(directory / TRUST_FILE)
     nodes = trust.nodes()
     inside = occupancy.inside(scene, specimen_shapes(scene), nodes)
     error = error_map(result.field, truth, nodes[inside])

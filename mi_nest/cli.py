@@ -59,7 +59,8 @@ def _parser():
                                                  "(.TSV) for its stress lines")
     export.add_argument("field", help="stress file (grid or mesh .npz, 3D-TSV .TSV/.stress or .TSVcarti/.carti), "
                                       "or a scene (XML file or shipped name) or a reconstruction directory, whose "
-                                      "specimens are sampled on grids")
+                                      "specimens are sampled on grids (a reconstruction's .vtu also holds its trust "
+                                      "map)")
     export.add_argument("-o", "--output", required=True, help="output path: .vtu or .TSV")
     export.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill a scene's $NAME default (repeatable)")
@@ -204,7 +205,8 @@ def _parser():
 
     principal = commands.add_parser(
         "principal", help="principal stresses and von Mises on a plane, with direction glyphs (PNG); for a "
-                          "reconstruction of simulated data also the truth and the error")
+                          "reconstruction of simulated data also the truth and the error; with its trust map, "
+                          "the uncertainty")
     principal.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
     principal.add_argument("--plane", help="the plane across an axis: x=MM, y=MM or z=MM")
     principal.add_argument("--normal", help="or the plane's normal X,Y,Z (with --offset)")
@@ -347,7 +349,13 @@ def _export(args):
         print(f"{args.field}: the reconstruction's deviatoric stress, written as deviatoric_stress and s_1..s_3 "
               "(photoelasticity does not see the mean stress; the principal directions and von Mises are the "
               "full stress's)")
-    for path in export_scene(source.scene, args.output, args.resolution, source.field, source.is_reconstruction):
+    if source.trust is not None:
+        print(f"{args.field}: its trust map "
+              + ("written beside it as trust_uncertainty, trust_coverage, trust_direction_spread and "
+                 "trust_heldout_residual" if Path(args.output).suffix.lower() == ".vtu"
+                 else "is not written: 3D-TSV holds stress only (export to .vtu to have it)"))
+    for path in export_scene(source.scene, args.output, args.resolution, source.field, source.is_reconstruction,
+                             None if source.trust is None else source.trust.point_data):
         print(f"wrote {path.resolve()}")
 
 
@@ -552,14 +560,16 @@ def _slice(args):
 
 def _principal(args):
     from .inside import Plane, open_source
-    from .inside.principal import source_slices, write_principal_figure
+    from .inside.principal import (deviatoric_error, source_slices, uncertainty_on, uncertainty_ranking,
+                                   write_principal_figure)
     plane = Plane.parse(args.plane, args.normal, args.offset)
     source = open_source(args.source, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output}, args.source, source)
     shown, truth = source_slices(source, plane, args.res)
+    uncertainty = None if source.trust is None else uncertainty_on(shown, source.trust)
     kind = "deviatoric principal stresses" if shown.deviatoric else "principal stresses"
     path = write_principal_figure(args.output, shown, truth, f"{Path(args.source).name}: {kind} at "
-                                                             f"{plane.describe()}")
+                                                             f"{plane.describe()}", uncertainty)
     prefix = "deviatoric s" if shown.deviatoric else "sigma"
     print(f"{Path(args.source).name} at {plane.describe()}: " + ", ".join(
         f"{label} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
@@ -568,6 +578,11 @@ def _principal(args):
         error = shown.minus(truth)["von_mises"]
         print(f"von Mises against the truth: RMS error {np.sqrt(np.nanmean(error ** 2)):.3g} MPa "
               f"(truth's RMS {np.sqrt(np.nanmean(truth.von_mises ** 2)):.3g} MPa)")
+    if uncertainty is not None:
+        print(f"where to trust it (trust.npz): uncertainty {np.nanmin(uncertainty):.3g} to "
+              f"{np.nanmax(uncertainty):.3g} stress scales per box length on this plane" + ("" if truth is None else
+              f"; it ranks the actual deviatoric error at Spearman "
+              f"{uncertainty_ranking(uncertainty, deviatoric_error(shown, truth)):.2f}"))
     print(f"wrote {path.resolve()}")
 
 

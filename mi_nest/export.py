@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import mitsuba as mi
 import numpy as np
@@ -55,12 +56,14 @@ DEVIATORIC_NOTE = "deviatoric stress (trace-free; photoelasticity does not measu
 
 
 def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64,
-                 field: StressField | None = None, deviatoric: bool = False) -> list[Path]:
+                 field: StressField | None = None, deviatoric: bool = False,
+                 point_data: Callable[[np.ndarray], dict[str, np.ndarray]] | None = None) -> list[Path]:
     """Write each specimen's field (or ``field`` in each) as ``output`` (``output-<i>.<suffix>`` when there
     are several): the hexahedra of a grid over its bounding box whose centres lie inside the specimen, as
     ``.vtu`` or as ``.TSV`` (what 3D-TSV traces stress lines through). A ``deviatoric`` field (a
     reconstruction's) is labelled so in both: the ``.vtu``'s arrays are ``deviatoric_stress``, ``s_1``...,
-    the ``.TSV``'s first line says it."""
+    the ``.TSV``'s first line says it. ``point_data(nodes)`` adds arrays to the ``.vtu`` (a reconstruction's
+    trust map, ``TrustMap.point_data``; 3D-TSV holds stress only)."""
     output = Path(output)
     kind = export_format(output)
     grids = specimen_grids(scene, resolution, field)
@@ -69,7 +72,7 @@ def export_scene(scene: mi.Scene, output: str | Path, resolution: int = 64,
     for shape, grid, path in zip(specimen_shapes(scene), grids, paths):
         nodes, cells, stress = _inside_hexahedra(scene, shape, grid)
         if kind == ".vtu":
-            write_mesh_vtu(path, nodes, cells, stress, deviatoric)
+            write_mesh_vtu(path, nodes, cells, stress, deviatoric, None if point_data is None else point_data(nodes))
         else:
             write_stress_file(path, nodes, cells, stress, note=DEVIATORIC_NOTE if deviatoric else None)
     return paths

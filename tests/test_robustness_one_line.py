@@ -307,7 +307,7 @@ def test_minutes_must_be_positive_in_the_words_of_the_flag(minutes, tiny_dataset
 
 def test_a_damaged_reconstruction_file_is_named_with_what_to_do(tiny_dataset, tmp_path, capsys):
     """A damaged reconstruction.json was a bare JSON message ("Expecting property name ..."), a damaged field.npz
-    a BadZipFile traceback; both name the file, say it is damaged and what to do."""
+    a BadZipFile traceback; both name the file, say it is damaged and what to do; so does a damaged trust.npz."""
     result = tmp_path / "result"
     optimize(mi_nest.load_scene("disk_compression", res=8, **GENTLE), tiny_dataset, output=result, progress=False,
              **FAST)
@@ -320,9 +320,17 @@ def test_a_damaged_reconstruction_file_is_named_with_what_to_do(tiny_dataset, tm
     assert main(["render", str(result), "-o", str(tmp_path / "view.exr"), "--quiet"]) == 2
     assert re.fullmatch(message, _error(capsys.readouterr().err))
     (result / "reconstruction.json").write_bytes(record)
-    (result / "field.npz").write_bytes((result / "field.npz").read_bytes()[:300])
+    field = (result / "field.npz").read_bytes()
+    (result / "field.npz").write_bytes(field[:300])
     with pytest.raises(ReconstructionFileError, match=rf"field.npz is damaged and cannot be read \(.*\); {advice}"):
         Reconstruction.load(result)
+    (result / "field.npz").write_bytes(field)
+    (result / "trust.npz").write_bytes((result / "trust.npz").read_bytes()[:300])
+    assert main(["principal", str(result), "--plane", "z=0", "--res", "8", "-o", str(tmp_path / "p.png")]) == 2
+    assert re.fullmatch(rf"{re.escape(str(result))}/trust.npz is damaged and cannot be read \(.*\); delete it to go "
+                        "on without the trust map, or run the mi-nest reconstruct command that wrote it again",
+                        _error(capsys.readouterr().err))
+    assert not (tmp_path / "p.png").exists()
 
 
 def test_a_refused_simulate_writes_nothing_and_the_corrected_rerun_runs(tmp_path, capsys):

@@ -75,3 +75,29 @@ def test_a_run_writes_its_trust_map_and_summary(one_axis_and_two_axes, tmp_path)
     assert summary["nodes"] == int(np.isfinite(trust.imbalance).sum()) > 0
     assert np.isfinite(summary["uncertainty_median"])
     assert "equilibrium imbalance" in result.describe()
+
+
+def test_the_trust_map_at_a_point_is_its_nearest_measured_node():
+    """Export nodes on the part's surface fall nearest lattice nodes the imbalance was not measured at; they take
+    the nearest measured node's value, not NaN."""
+    values = np.full((2, 3, 4), np.nan)
+    values[:, 1, 1] = 5.0
+    values[:, 1, 2] = 7.0
+    trust = TrustMap(np.zeros(3), np.array([3.0, 2.0, 1.0]), values, values, values, values, [], [])
+    points = np.array([[1.0, 1.0, 0.0], [2.2, 0.9, 1.0], [0.0, 0.0, 0.0], [3.0, 2.0, 1.0]])
+    np.testing.assert_array_equal(trust.at(points), [5.0, 7.0, 5.0, 7.0])
+    exported = trust.point_data(points)
+    assert list(exported) == ["trust_uncertainty", "trust_coverage", "trust_direction_spread",
+                              "trust_heldout_residual"]
+    blank = TrustMap(np.zeros(3), np.ones(3), *(np.full((2, 2, 2), np.nan),) * 4, [], [])
+    assert np.isnan(blank.at(points)).all()
+
+
+def test_the_uncertainty_ranking_is_spearmans_over_the_pixels_where_both_are_known():
+    from mi_nest.inside.principal import uncertainty_ranking
+    error = np.array([[0.1, 0.5, np.nan], [2.0, 0.3, 9.0]])
+    assert uncertainty_ranking(np.log(error), error) == pytest.approx(1.0)
+    assert uncertainty_ranking(-error, error) == pytest.approx(-1.0)
+    # Rank differences 0, 1, 1, 2, 0 over the five known pixels: 1 - 6 * 6 / (5 * 24).
+    assert uncertainty_ranking(np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), error) == pytest.approx(0.7)
+    assert np.isnan(uncertainty_ranking(np.array([[1.0, np.nan, np.nan], [2.0, np.nan, np.nan]]), error))

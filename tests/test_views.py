@@ -1,6 +1,7 @@
 """Novel views of scenes and reconstructions: one code path with mi-nest render, poses as datasets pose,
 polariscope, load and wavelength options, turntables and the held-out comparison."""
 import json
+import re
 
 import imageio.v3 as iio
 import numpy as np
@@ -133,7 +134,19 @@ def test_a_reconstructions_principal_stresses_are_deviatoric_beside_the_truths(r
     np.testing.assert_allclose(shown.minus(truth)["sigma_1"][inside], (shown.values - truth.values)[..., 0][inside])
     output = tmp_path / "principal.png"
     assert main(["principal", str(result / "result"), "--plane", "z=0", "--res", "24", "-o", str(output)]) == 0
-    assert "von Mises against the truth: RMS error" in capsys.readouterr().out and output.stat().st_size > 0
+    printed = capsys.readouterr().out
+    assert "von Mises against the truth: RMS error" in printed and output.stat().st_size > 0
+    # The trust map's column: the uncertainty on the plane and the Spearman ranking of the actual error.
+    assert re.search(r"where to trust it \(trust.npz\): uncertainty \S+ to \S+ stress scales per box length on this "
+                     r"plane; it ranks the actual deviatoric error at Spearman -?\d\.\d\d", printed)
+    assert iio.imread(output).shape[1] > 5 * 4 * 80        # five panels across, not four
+    from mi_nest.inside.principal import deviatoric_error, uncertainty_on
+    difference = (shown.stress - truth.stress)[inside]
+    difference[:, :3] -= difference[:, :3].mean(axis=1, keepdims=True)
+    expected = np.linalg.norm(difference[:, [0, 3, 5, 3, 1, 4, 5, 4, 2]], axis=1)    # the full 3x3 matrix's norm
+    np.testing.assert_allclose(deviatoric_error(shown, truth)[inside], expected, rtol=1e-9)
+    uncertainty = uncertainty_on(shown, open_source(result / "result").trust)
+    assert np.isfinite(uncertainty[shown.inside]).all() and np.isnan(uncertainty[~shown.inside]).all()
 
 
 def test_a_reconstruction_exports_to_3d_tsv_and_reads_back_as_its_field(result, tmp_path, capsys):
@@ -166,7 +179,17 @@ def test_a_reconstruction_s_exports_say_deviatoric_and_hold_only_the_part(result
     first_line = tsv.read_text().splitlines()[0]
     assert first_line.startswith("Version 2.0") and "deviatoric stress" in first_line
     assert len(read_stress_file(tsv).vertices) == len(exported.points)       # mi_nest reads its own note back
-    assert "deviatoric_stress and s_1..s_3" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "deviatoric_stress and s_1..s_3" in printed
+    # The trust map goes into the .vtu at its nearest measured node, and the .TSV says it is not there.
+    from mi_nest.reconstruct.trust import TrustMap
+    trust = TrustMap.load(result / "result" / "trust.npz")
+    for name in ("uncertainty", "coverage", "direction_spread", "heldout_residual"):
+        np.testing.assert_allclose(exported.point_data[f"trust_{name}"], trust.at(exported.points, name))
+    assert np.isfinite(exported.point_data["trust_uncertainty"]).all()
+    assert (exported.point_data["trust_uncertainty"] >= 0).all()
+    assert "its trust map written beside it as trust_uncertainty" in printed
+    assert "its trust map is not written: 3D-TSV holds stress only" in printed
 
 
 def test_principal_names_a_deviator_and_its_colour_bars_show_what_they_clip(result, tmp_path, capsys):

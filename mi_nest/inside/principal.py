@@ -12,10 +12,14 @@ from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
+from scipy.stats import spearmanr
 
 from .. import occupancy
 from ..fields.base import sample
 from ..physics.tensors import principal_axes, von_mises
+from ..reconstruct.fields import deviatoric_part
+from ..reconstruct.metrics import tensor_norm
+from ..reconstruct.trust import TrustMap
 from ..scene import specimen_shapes
 from .plots import pyplot, save_figure
 from .slicing import Plane, SliceError, SliceImage, slice_image
@@ -28,9 +32,11 @@ GLYPHS_ACROSS = 18
 
 @dataclass
 class PrincipalSlice:
-    """On a plane's pixels: ``values`` (H, W, 3) largest first (MPa), ``directions`` (H, W, 3, 3) with
-    ``directions[..., k, :]`` along ``values[..., k]``, ``von_mises`` (H, W), ``inside`` (H, W); NaN outside."""
+    """On a plane's pixels: ``stress`` (H, W, 6) in MPa, ``values`` (H, W, 3) largest first, ``directions``
+    (H, W, 3, 3) with ``directions[..., k, :]`` along ``values[..., k]``, ``von_mises`` (H, W), ``inside`` (H, W);
+    NaN outside."""
     image: SliceImage
+    stress: np.ndarray
     values: np.ndarray
     directions: np.ndarray
     von_mises: np.ndarray
@@ -76,7 +82,8 @@ def principal_slice(scene: mi.Scene, plane: Plane, resolution: int = 128, field:
     values[inside], directions[inside] = principal_axes(stress[inside])
     shape = (image.height, image.width)
     mises = np.where(inside, von_mises(np.nan_to_num(stress)), np.nan)
-    return PrincipalSlice(image, values.reshape(*shape, 3), directions.reshape(*shape, 3, 3), mises.reshape(shape),
+    return PrincipalSlice(image, stress.reshape(*shape, 6), values.reshape(*shape, 3),
+                          directions.reshape(*shape, 3, 3), mises.reshape(shape),
                           inside.reshape(shape), deviatoric)
 
 
@@ -90,17 +97,40 @@ def source_slices(source: ViewSource, plane: Plane, resolution: int = 128
     return shown, principal_slice(truth.scene, plane, resolution, None, deviatoric=True)
 
 
+def uncertainty_on(shown: PrincipalSlice, trust: TrustMap) -> np.ndarray:
+    """A reconstruction's trust-map uncertainty at the slice's pixels inside the part (H, W); NaN outside."""
+    values = trust.at(shown.image.centres()).reshape(shown.inside.shape)
+    return np.where(shown.inside, values, np.nan)
+
+
+def deviatoric_error(shown: PrincipalSlice, truth: PrincipalSlice) -> np.ndarray:
+    """``|s - s_true|`` (Frobenius, MPa) at each pixel (H, W); NaN where either is outside."""
+    return tensor_norm(deviatoric_part(shown.stress) - deviatoric_part(truth.stress))
+
+
+def uncertainty_ranking(uncertainty: np.ndarray, error: np.ndarray) -> float:
+    """The Spearman rank correlation of the uncertainty with the actual error over the pixels where both are
+    known: how well the trust map ranks this plane's error (1: in the same order)."""
+    both = np.isfinite(uncertainty) & np.isfinite(error)
+    if both.sum() < 3:
+        return float("nan")
+    return float(spearmanr(uncertainty[both], error[both]).statistic)
+
+
 def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: PrincipalSlice | None,
-                           title: str) -> Path:
+                           title: str, uncertainty: np.ndarray | None = None) -> Path:
     """sigma_1, sigma_2, sigma_3 and von Mises with colour bars in MPa, direction glyphs on the principal
     stresses (their in-plane part: a short glyph points out of the plane); with ``truth``, its row and the
-    error row below."""
+    error row below. A reconstruction's ``uncertainty`` on the plane (:func:`uncertainty_on`) adds a column:
+    where to trust it, above the actual deviatoric error when the truth is known."""
     plt = pyplot()
     rows = [("reconstruction" if shown.deviatoric and truth is not None else "", shown)]
     if truth is not None:
         rows.append(("truth", truth))
     row_count = len(rows) + (truth is not None)        # with a truth, its row and the error row
-    figure, axes = plt.subplots(row_count, 4, figsize=(17, 4.2 * row_count), squeeze=False, constrained_layout=True)
+    columns = len(QUANTITIES) + (uncertainty is not None)
+    figure, axes = plt.subplots(row_count, columns, figsize=(4.25 * columns, 4.2 * row_count), squeeze=False,
+                                constrained_layout=True)
     prefix = "s" if shown.deviatoric else "sigma"
     names = {"sigma_1": f"{prefix}_1", "sigma_2": f"{prefix}_2", "sigma_3": f"{prefix}_3", "von_mises": "von Mises"}
     # One colour scale per quantity across the rows, so that truth and reconstruction compare by eye.
@@ -135,7 +165,31 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
             axis.set_title(f"reconstruction - truth: {names[name]}")
             axis.set_xlabel("image right (mm)")
             axis.set_ylabel("image up (mm)")
+    if uncertainty is not None:
+        _trust_column(figure, axes[:, -1], shown, truth, uncertainty)
     return save_figure(figure, path, title, dpi=90)
+
+
+def _trust_column(figure, column, shown, truth, uncertainty):
+    """The uncertainty above (with a truth) the truth row left empty and the actual error it should rank."""
+    extent = shown.image.extent()
+    panels = [(column[0], uncertainty, "viridis", "imbalance (stress scales / box length)",
+               "uncertainty (trust.npz)")]
+    if truth is not None:
+        column[1].axis("off")
+        error = deviatoric_error(shown, truth)
+        rho = uncertainty_ranking(uncertainty, error)
+        panels.append((column[-1], error, "magma", "|s - s_true| (MPa)", f"actual error (Spearman {rho:.2f})"))
+    for axis, values, cmap, label, heading in panels:
+        finite = values[np.isfinite(values)]
+        high = max(float(np.percentile(finite, 99)), 1e-12) if finite.size else 1.0
+        drawn = axis.imshow(np.ma.masked_invalid(values), cmap=cmap, vmin=0.0, vmax=high, extent=extent,
+                            interpolation="nearest")
+        clipped = finite.size and finite.max() > high
+        figure.colorbar(drawn, ax=axis, shrink=0.85, label=label, extend="max" if clipped else "neither")
+        axis.set_title(heading)
+        axis.set_xlabel("image right (mm)")
+        axis.set_ylabel("image up (mm)")
 
 
 def _colour_bar(figure, axis, drawn, values, low, high, label):

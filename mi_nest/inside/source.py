@@ -1,6 +1,7 @@
 """What a view looks at: a scene's own (true) field, or a reconstruction's field in its scene's specimens."""
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import numpy as np
 from ..dataset.truth import recorded_scene, truth_scene
 from ..fields import StressField
 from ..reconstruct import Reconstruction
+from ..reconstruct.trust import TRUST_FILE, TrustMap
 from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
 
 RESULT_FILES = ("reconstruction.json", "field.npz")
@@ -18,11 +20,13 @@ RESULT_FILES = ("reconstruction.json", "field.npz")
 @dataclass
 class ViewSource:
     """A scene and the field to show in its specimens: ``field`` None is the scene's own stress. Views turn the
-    specimen about ``center`` from the camera's pose as loaded, ``reference``."""
+    specimen about ``center`` from the camera's pose as loaded, ``reference``. A reconstruction's ``trust`` is its
+    trust map (``trust.npz``; None where the run wrote none)."""
     scene: mi.Scene
     field: StressField | None
     name: str
     reconstruction: Reconstruction | None = None
+    trust: TrustMap | None = None
     reference: np.ndarray = dataclass_field(init=False, repr=False)
     center: np.ndarray = dataclass_field(init=False, repr=False)
 
@@ -57,7 +61,7 @@ def open_source(text: str | Path, defines: dict | None = None) -> ViewSource:
         reconstruction = Reconstruction.load(path)
         scene_file, scene_defines = _reconstruction_scene(path, reconstruction.source)
         scene = load_scene(scene_file, **{**scene_defines, **dict(defines or {})})
-        return ViewSource(scene, reconstruction.field, str(path), reconstruction)
+        return ViewSource(scene, reconstruction.field, str(path), reconstruction, _trust(path))
     if path.is_dir():
         raise ValueError(f"{path} is a directory but not a reconstruction (no {' or '.join(RESULT_FILES)}): "
                          "give a scene or the output directory of mi-nest reconstruct")
@@ -72,3 +76,13 @@ def _reconstruction_scene(path: Path, source: dict) -> tuple[str, dict]:
         raise ValueError(f"{path}/reconstruction.json does not record its scene (made before mi_nest recorded "
                          "it): reconstruct again")
     return dataset["scene"], dataset.get("defines", {})
+
+
+def _trust(path: Path) -> TrustMap | None:
+    if not (path / TRUST_FILE).is_file():
+        return None
+    try:
+        return TrustMap.load(path / TRUST_FILE)
+    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(f"{path / TRUST_FILE} is damaged and cannot be read ({error}); delete it to go on without "
+                         "the trust map, or run the mi-nest reconstruct command that wrote it again") from error

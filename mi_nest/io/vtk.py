@@ -30,11 +30,12 @@ def point_data(stress6: np.ndarray, deviatoric: bool = False) -> dict[str, np.nd
 
 
 def write_mesh_vtu(path: str | Path, nodes: np.ndarray, cells: np.ndarray, stress6: np.ndarray,
-                   deviatoric: bool = False) -> None:
-    """Tetrahedra (M, 4) or hexahedra (M, 8), VTK node order; ``deviatoric`` names the arrays as such."""
+                   deviatoric: bool = False, extra: dict[str, np.ndarray] | None = None) -> None:
+    """Tetrahedra (M, 4) or hexahedra (M, 8), VTK node order; ``deviatoric`` names the arrays as such;
+    ``extra`` point data is written beside them (a reconstruction's trust map)."""
     import meshio
     cells = np.asarray(cells)
     kind = {4: "tetra", 8: "hexahedron"}[cells.shape[1]]
-    meshio.Mesh(np.asarray(nodes, np.float64), [(kind, cells)], point_data=point_data(stress6, deviatoric)).write(
-        str(Path(path)))
+    data = {**point_data(stress6, deviatoric), **(extra or {})}
+    meshio.Mesh(np.asarray(nodes, np.float64), [(kind, cells)], point_data=data).write(str(Path(path)))
 

@@ -29,7 +29,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from scipy.ndimage import uniform_filter
+from scipy.ndimage import distance_transform_edt, uniform_filter
 
 from ..arrays import device_array
 from ..dataset import Dataset
@@ -50,6 +50,8 @@ LATTICE = 48
 # Samples along each ray per node spacing.
 SAMPLES_PER_SPACING = 2
 TRUST_FILE = "trust.npz"
+# What a trust map holds per node, the uncertainty first.
+TERMS = ("uncertainty", "coverage", "direction_spread", "heldout_residual")
 
 
 @dataclass
@@ -80,13 +82,23 @@ class TrustMap:
         return grid_nodes(self.bbox_min, self.bbox_max, self.shape)
 
     def at(self, points: np.ndarray, name: str = "uncertainty") -> np.ndarray:
-        """``name`` at ``points`` (N, 3), from the nearest node."""
+        """``name`` at ``points`` (N, 3), from the nearest node; a node the term was not measured at (a cell
+        outside the part, a node no ray reached) takes its nearest measured node's value."""
         values = getattr(self, name)
+        measured = np.isfinite(values)
+        if not measured.any():
+            return np.full(len(points), np.nan)
+        nearest = distance_transform_edt(~measured, return_distances=False, return_indices=True)
+        filled = values[tuple(nearest)]
         low, high = np.asarray(self.bbox_min), np.asarray(self.bbox_max)
         counts = np.array(self.shape)
         index = np.rint((np.asarray(points) - low) / (high - low) * (counts - 1)).astype(int)
         index = np.clip(index, 0, counts - 1)
-        return values[index[:, 2], index[:, 1], index[:, 0]]
+        return filled[index[:, 2], index[:, 1], index[:, 0]]
+
+    def point_data(self, points: np.ndarray) -> dict[str, np.ndarray]:
+        """The terms at ``points`` under the names an export writes them (``trust_uncertainty``...)."""
+        return {f"trust_{name}": self.at(points, name) for name in TERMS}
 
     def summary(self) -> dict:
         """What ``reconstruction.json`` records."""
