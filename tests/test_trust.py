@@ -101,3 +101,24 @@ def test_the_uncertainty_ranking_is_spearmans_over_the_pixels_where_both_are_kno
     # Rank differences 0, 1, 1, 2, 0 over the five known pixels: 1 - 6 * 6 / (5 * 24).
     assert uncertainty_ranking(np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]), error) == pytest.approx(0.7)
     assert np.isnan(uncertainty_ranking(np.array([[1.0, np.nan, np.nan], [2.0, np.nan, np.nan]]), error))
+
+
+def test_a_run_says_what_it_chose_from_the_data_and_records_it(one_axis_and_two_axes, tmp_path, capsys):
+    """Section 5 of issue 34: a run with no options prints what its defaults became on these data."""
+    scene = mi_nest.load_scene("disk_compression", res=16, load=20)
+    result = optimize(scene, one_axis_and_two_axes["one"], output=tmp_path / "out", progress=True, iterations=2,
+                      batch_size=64, evaluate_views=1)
+    printed = capsys.readouterr().out.splitlines()
+    data_line, chose_line = (next(line for line in printed if line.startswith(prefix))
+                             for prefix in ("data:", "chose:"))
+    train = len(Dataset(one_axis_and_two_axes["one"]).split("train"))
+    # One rotation axis: azimuths only, 16 x 16 pixels; the disk (40 x 40 x 6 mm) needs 64 nodes for 10 across.
+    assert data_line.startswith(f"data: {train} training rotations, azimuths spanning ")
+    assert "elevation" not in data_line
+    assert "at 16x16 pixels" in data_line
+    nx, ny, nz = result.field.shape
+    assert (nx, ny, nz) == (64, 64, 11)
+    assert chose_line.startswith(f"chose: grid {nx}x{ny}x{nz} (the coarsest of 32, 48, 64 nodes")
+    assert "NeST-general" in chose_line and "eased above a field RMS of 1 stress scales" in chose_line
+    recorded = json.loads((tmp_path / "out" / "reconstruction.json").read_text())["source"]["choices"]
+    assert recorded == [data_line, chose_line]

@@ -24,6 +24,7 @@ from ..physics.aliasing import NYQUIST
 from ..scene import load_scene, scene_file, specimen_bounds, specimen_media, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
+from .choices import choices
 from .config import OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
@@ -70,7 +71,10 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         truth = scene_field(truth_scene(scene, dataset.index.get("source") or {}, str(dataset.directory)))
 
     low, high = specimen_bounds(shapes)
-    config = settle(config, high - low)
+    asked, config = config, settle(config, high - low)
+    chosen = choices(asked, config, high - low, dataset)
+    if progress:
+        print("\n".join(chosen), flush=True)
     scale = stress_scale(media, low, high)
     run = Run(scene, dataset, config, low, high, scale, output, progress)
     if truth is not None and config.reporting.track_error_every:
@@ -84,6 +88,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         with interrupts.deferred():
             run.loop()
         result = run.result()
+        result.source["choices"] = chosen
         # The held-out views rendered once: for the PSNR and for the trust map's residuals.
         predictions = heldout_predictions(scene, dataset, result.field, run.integrator(),
                                           config.reporting.evaluate_views)

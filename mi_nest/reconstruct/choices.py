@@ -1,0 +1,67 @@
+"""What a run decided for itself, and from what: the lines ``optimize`` prints before it starts and records in
+``reconstruction.json`` (``source.choices``), so that a user who gave no option sees what the defaults became on
+their data."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dataset import Dataset
+from .config import NO_REGULARISER, REGULARISED, OptimizeConfig
+from .fields import DEFAULT_RESOLUTIONS, GRID_NODE_LIMIT, MIN_NODES_ACROSS, grid_shape
+
+METHOD_NAMES = {"product": "NeST-general (a product of exact steps)", "magnus4": "4th-order Magnus steps",
+                "linear": "NeST-approx (the linear model)", "two-step": "the Two-step baseline"}
+
+
+def data_facts(dataset: Dataset) -> str:
+    """The rotations and the fringe density of ``dataset``, as the choices read them."""
+    train = [dataset.rotations[i] for i in dataset.split("train")]
+    spans = []
+    for axis in ("azimuth", "elevation"):
+        angles = np.array([r[axis] for r in train], dtype=float)
+        if np.ptp(angles) > 0:
+            spans.append(f"{axis}s spanning {np.ptp(angles):.0f} degrees")
+    width, height = dataset.resolution
+    about = " and ".join(spans) if spans else "one pose"
+    facts = f"{len(train)} training rotations, {about}, at {width}x{height} pixels"
+    aliasing = dataset.index.get("fringe_aliasing")
+    if aliasing and aliasing.get("views"):
+        facts += (f"; fringes denser than the pixels in {100 * aliasing['mean_fraction']:.0f}% of the specimen's "
+                  f"pixels (up to {aliasing['densest']:.2g} orders per pixel)")
+    elif aliasing:
+        facts += "; fringes resolved by the pixels"
+    return facts
+
+
+def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, dataset: Dataset) -> list[str]:
+    """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`)."""
+    field = settled.field
+    if field.kind == "grid":
+        nx, ny, nz = grid_shape(field.resolution, extent)
+        why = ("--resolution" if asked.field.resolution is not None else
+               f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
+               f"{MIN_NODES_ACROSS} across the thinnest side")
+        representation = f"grid {nx}x{ny}x{nz} ({why})"
+    else:
+        why = ("--kind" if asked.field.kind != "auto" else
+               f"a grid at {field.resolution} nodes would pass {GRID_NODE_LIMIT:,} nodes")
+        representation = f"{field.kind} ({why})"
+    if settled.model.step_size is not None:
+        step = f"{settled.model.step_size:g} mm steps"
+    else:
+        step = "steps of half the node spacing" if field.kind == "grid" else "steps of the box / 64"
+    regulariser = settled.regulariser
+    if regulariser == REGULARISED:
+        smoothing = ("the targets' smoothness, eased above a field RMS of "
+                     f"{regulariser.relative_to:g} stress scales")
+    elif regulariser == NO_REGULARISER:
+        smoothing = "no regulariser"
+    else:
+        smoothing = "the regulariser as given"
+    if regulariser.equilibrium:
+        smoothing += f", equilibrium prior {regulariser.equilibrium:g}"
+    schedule = settled.schedule
+    budget = f"{schedule.iterations:,} iterations" + (
+        "" if schedule.time_limit is None else f" or {schedule.time_limit / 60:.3g} minutes, whichever ends first")
+    return [f"data: {data_facts(dataset)}",
+            f"chose: {representation}; {METHOD_NAMES[settled.model.method]} in {step}; {smoothing}; {budget}"]
