@@ -145,6 +145,10 @@ def _parser():
                                   "error above them (FAST_OPTIONS: 10,800 iterations of 1,024 pixels, 70%% of them "
                                   "on the final grid, 1 ray per pixel in the coarse stages; flags and --option "
                                   "given override it)")
+    reconstruct.add_argument("--deterministic", action="store_true",
+                             help="one CPU thread, so that a seeded run of --iterations repeats bit for bit (two "
+                                  "threads sum the gradients in varying order; see docs/reconstruction.md for the "
+                                  "cost)")
     reconstruct.add_argument("--no-regulariser", action="store_true",
                              help="the plain fit, without the grid's default smoothness and iterate averaging")
     reconstruct.add_argument("--option", dest="options", action="append", type=parse_define, default=[],
@@ -491,7 +495,8 @@ def _reconstruction_options(args):
         fast.pop("average_last", None)      # --fast's averaging is a part of the regulariser left out
     if args.minutes is not None:
         fast.pop("iterations", None)        # the clock ends the run, not --fast's iteration count
-    options = {**fast, "kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {})}
+    options = {**fast, "kind": args.kind, **({"regulariser": NO_REGULARISER} if args.no_regulariser else {}),
+               **({"deterministic": True} if args.deterministic else {})}
     for name, text in args.options:
         options[name.replace("-", "_")] = option_value(name.replace("-", "_"), text)
     for name in ("iterations", "resolution", "method"):

@@ -69,6 +69,9 @@ class Optimiser:
     coarse_pixel_samples: int | None = None  # the same in the coarse-to-fine stages before the finest (None: as above)
     mask: str | None = "mask.dolp"   # dataset channel of the pixels that enter the loss and the PSNR (None: all)
     seed: int = 0                    # of the batches and the steps' jitter
+    # One CPU thread, so that the gradients' scatter-adds sum in one order and a seeded run of a given number of
+    # iterations repeats bit for bit (with two threads their order varies: runs end a few 0.01% apart).
+    deterministic: bool = False
 
     def __post_init__(self):
         for name in ("batch_size", "views_per_batch"):
@@ -244,6 +247,9 @@ class OptimizeConfig:
         self._check_across_groups()
 
     def _check_across_groups(self):
+        if self.optimiser.deterministic and self.schedule.time_limit is not None:
+            raise ValueError("a deterministic run repeats a fixed number of iterations, and a time limit ends it "
+                             "wherever the clock says: drop the time limit (--minutes) or deterministic")
         if self.schedule.warm_start and self.model.method == "two-step":
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")

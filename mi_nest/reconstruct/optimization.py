@@ -12,6 +12,7 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -82,6 +83,8 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     with contextlib.ExitStack() as stack:
         if output is not None:
             stack.enter_context(locked_directory(output))
+        if config.optimiser.deterministic:
+            stack.enter_context(one_thread())
         if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
             run.restore(Path(output) / CHECKPOINT)
         # Ctrl-C waits for the end of an iteration, so that the checkpoint holds whole steps.
@@ -103,6 +106,21 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
             result.save(output)
             trust.save(Path(output) / TRUST_FILE)
     return result
+
+
+@contextlib.contextmanager
+def one_thread():
+    """Dr.Jit's LLVM backend on one thread for the block (restored after): its scatter-adds then sum in one
+    order, so that a seeded run repeats bit for bit."""
+    if not mi.variant().startswith("llvm"):
+        raise ValueError(f"a deterministic run needs an LLVM variant (one CPU thread), and this is "
+                         f"'{mi.variant()}': the GPU's atomic additions sum in no fixed order")
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(threads)
 
 
 def stress_scale(media: list[mi.Medium], low: np.ndarray, high: np.ndarray) -> float:
