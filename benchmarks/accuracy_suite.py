@@ -85,6 +85,12 @@ DIAGNOSTIC_CASES = [
     Case("stacked_disks_64nodes", "stacked_disks", {"load": 300, "contact_width": 4}, flags=("--resolution", "64"),
          target=0.10, note="diagnostic: the stacked disks on a grid twice as fine (the default gives 32 nodes)",
          same_data_as="stacked_disks"),
+    Case("disk_300N_relative05", "disk_compression", {"load": 300, "contact_width": 4},
+         flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="disk_300N",
+         note="diagnostic: the 300 N disk with the smoothness eased from a field RMS of 0.5 (the default 1)"),
+    Case("stacked_disks_relative05", "stacked_disks", {"load": 300, "contact_width": 4},
+         flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="stacked_disks",
+         note="diagnostic: the stacked disks with the smoothness eased from a field RMS of 0.5 (the default 1)"),
 ]
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}

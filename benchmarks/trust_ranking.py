@@ -4,8 +4,8 @@ For each finished reconstruction given (``mi-nest reconstruct`` output directori
 the accuracy suite's), computes its trust map (``mi_nest.reconstruct.trust``) and the deviatoric error norm against
 the field the dataset was simulated from at the map's nodes inside the specimen, and prints the Spearman rank
 correlation of each trust term and of the uncertainty with the error, with the CPU and the seconds the map took.
-A result made before runs wrote their trust map gets its ``trust.npz`` (what ``mi-nest principal`` and ``export``
-show).
+Each result's ``trust.npz`` is written again with the map computed here (its curvature spread from the Adam
+moments of its ``checkpoint.npz``; results made before runs wrote their trust map get one).
 
     python benchmarks/trust_ranking.py experiments/out/accuracy_suite/accuracy_suite/*
 
@@ -32,7 +32,7 @@ from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
 
 HERE = Path(__file__).resolve().parents[1]
-TERMS = ("imbalance", "heldout_residual", "coverage", "direction_spread")
+TERMS = ("imbalance", "curvature_spread", "heldout_residual", "coverage", "direction_spread")
 
 
 def rank(directory: Path) -> dict:
@@ -44,10 +44,13 @@ def rank(directory: Path) -> dict:
     start = time.perf_counter()
     predictions = heldout_predictions(scene, dataset, result.field, result.integrator(scene),
                                       result.config.reporting.evaluate_views)
-    trust = trust_map(scene, dataset, result.field, predictions, result.config.optimiser.mask)
+    second_moment = None
+    if (directory / "checkpoint.npz").is_file() and result.field.kind == "grid":
+        with np.load(directory / "checkpoint.npz") as checkpoint:
+            second_moment = checkpoint["adam.grid.v"]
+    trust = trust_map(scene, dataset, result.field, predictions, result.config.optimiser.mask, second_moment)
     seconds = time.perf_counter() - start
-    if not (directory / TRUST_FILE).exists():
-        trust.save(directory / TRUST_FILE)
+    trust.save(directory / TRUST_FILE)
     nodes = trust.nodes()
     inside = occupancy.inside(scene, specimen_shapes(scene), nodes)
     error = error_map(result.field, truth, nodes[inside])

@@ -7,14 +7,14 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.dataset import SimulationSettings, simulate
+from mi_nest.dataset import simulate
 from mi_nest.dataset.truth import SceneRecord, recorded_scene
 from mi_nest.fields.base import sample
 from mi_nest.inside import open_source
 from mi_nest.reconstruct import optimize
 from mi_nest.scene import SceneError, specimen_media
+from scenes import TINY
 
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
             pixel_samples=1, seed=4)
 DEFINES = {"load": 60, "contact_width": 4}

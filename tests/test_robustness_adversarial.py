@@ -13,11 +13,11 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.dataset import DatasetError, SimulationSettings, simulate
+from mi_nest.dataset import DatasetError, simulate
 from mi_nest.dataset import format as fmt
 from mi_nest.io.exr import ExrFileError
 from mi_nest.rig.config import RigConfigError, parse
-from scenes import UNIFORM_CUBE_XML
+from scenes import TINY, UNIFORM_CUBE_XML
 
 try:
     import tomllib
@@ -43,7 +43,6 @@ SCENE_XML = """<scene version="3.0.0">
 </scene>"""
 PART_XML = f"""<scene version="3.0.0">
 {UNIFORM_CUBE_XML}</scene>"""
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 
 
 def cube_scene(directory, stress=1.0):

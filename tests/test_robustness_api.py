@@ -10,8 +10,8 @@ from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.reconstruct import FieldConfig, OptimizeConfig, optimize
 from mi_nest.scene import scene_file
+from scenes import TINY
 
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=2, batch_size=64, views_per_batch=3, resolution=6, evaluate_views=1, pixel_samples=1)
 
 

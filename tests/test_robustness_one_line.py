@@ -21,12 +21,11 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.dataset import SimulationSettings, simulate
+from mi_nest.dataset import simulate
 from mi_nest.io.atomic import TEMPORARY_MARK, OutOfRoomError, atomic_path
 from mi_nest.reconstruct import Reconstruction, ReconstructionFileError, optimize
+from scenes import GENTLE, TINY
 
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
-GENTLE = {"load": 20}
 FAST = dict(iterations=2, batch_size=64, views_per_batch=3, resolution=6, evaluate_views=1, pixel_samples=1)
 NO_SENSOR = """<scene version="3.0.0">
     <integrator type="photoelastic"/>

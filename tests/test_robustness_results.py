@@ -17,7 +17,7 @@ from mi_nest.fem import FemError, Material, SolverConfig, solve
 from mi_nest.io.exr import read_channels, read_metadata, write_channels
 from mi_nest.io.mesh import save_mesh_stress
 from mi_nest.reconstruct import DivergenceError, optimize
-from scenes import UNIFORM_CUBE_XML
+from scenes import TINY, UNIFORM_CUBE_XML
 
 # A 6 mm cube (Mitsuba's cube mesh: two triangles per face) seen along -z by an orthographic camera whose view
 # is exactly the cube's face. No robust-intersection flag: at 100x100 pixels, eight pixel centres lie exactly
@@ -39,7 +39,6 @@ CUBE_XML = """<scene version="3.0.0">
         </film>
     </sensor>
 """ + UNIFORM_CUBE_XML + "</scene>"
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, resolution=6, evaluate_views=1, pixel_samples=1)
 
 

@@ -22,10 +22,8 @@ from mi_nest.dataset import format as fmt
 from mi_nest.io.atomic import TEMPORARY_MARK, atomic_path
 from mi_nest.io.lock import LOCK_FILE, DirectoryInUseError, locked_directory
 from mi_nest.reconstruct import CheckpointError, optimize
+from scenes import GENTLE, TINY
 
-TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
-# A load whose fringes the 8x8 views resolve: no aliasing warning on stderr.
-GENTLE = {"load": 20}
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, resolution=6, evaluate_views=1, pixel_samples=1)
 # Not messages about how a run ended: tqdm's progress lines (carriage returns between updates), warnings, what
 # --yes tells the operator.

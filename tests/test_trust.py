@@ -74,6 +74,10 @@ def test_a_run_writes_its_trust_map_and_summary(one_axis_and_two_axes, tmp_path)
     summary = json.loads((tmp_path / "out" / "reconstruction.json").read_text())["metrics"]["trust"]
     assert summary["nodes"] == int(np.isfinite(trust.imbalance).sum()) > 0
     assert np.isfinite(summary["uncertainty_median"])
+    # The curvature spread from the run's own Adam moments, on the nodes the imbalance measures.
+    measured = np.isfinite(trust.imbalance)
+    assert np.array_equal(np.isfinite(trust.curvature_spread), measured)
+    assert np.nanmedian(trust.curvature_spread) == pytest.approx(1.0)
     assert "equilibrium imbalance" in result.describe()
 
 
@@ -122,3 +126,33 @@ def test_a_run_says_what_it_chose_from_the_data_and_records_it(one_axis_and_two_
     assert "NeST-general" in chose_line and "eased above a field RMS of 1 stress scales" in chose_line
     recorded = json.loads((tmp_path / "out" / "reconstruction.json").read_text())["source"]["choices"]
     assert recorded == [data_line, chose_line]
+
+
+def test_the_curvature_spread_is_the_inverse_root_of_the_mean_squared_gradient():
+    from mi_nest.reconstruct.trust import curvature_spread
+    second_moment = np.ones((1, 2, 3, 5))
+    second_moment[0, 0, 0] = 4.0            # pulled on twice as hard: half the spread
+    second_moment[0, 1, 2] = 123.0           # outside: not reported
+    inside = np.ones((1, 2, 3), bool)
+    inside[0, 1, 2] = False
+    spread = curvature_spread(second_moment, inside)
+    np.testing.assert_allclose(spread[inside], [0.5, 1.0, 1.0, 1.0, 1.0])
+    assert np.isnan(spread[0, 1, 2])
+    never = np.zeros((1, 1, 2, 5))
+    never[0, 0, 0] = 1.0
+    assert spread.dtype == np.float64 and np.isfinite(curvature_spread(never, np.ones((1, 1, 2), bool))).all()
+
+
+def test_dense_fringes_choose_the_finest_grid_and_say_why(one_axis_and_two_axes):
+    from mi_nest.reconstruct.choices import choices
+    from mi_nest.reconstruct.config import OptimizeConfig
+    from mi_nest.reconstruct.fields import settle
+    dataset = Dataset(one_axis_and_two_axes["two"])
+    dataset.index["fringe_aliasing"] = {"views": 9, "of": 12, "mean_fraction": 0.19, "max_fraction": 0.4,
+                                        "densest": 2.5}
+    box = np.array([40.0, 40.0, 12.0])          # the stacked disks': 32 nodes from its shape alone
+    lines = choices(OptimizeConfig(), settle(OptimizeConfig(), box, 0.19), box, dataset)
+    assert "fringes denser than the pixels in 19% of the specimen's pixels (up to 2.5 orders per pixel)" in lines[0]
+    assert "elevations spanning" in lines[0]
+    assert lines[1].startswith("chose: grid 64x64x20 (the finest default: the fringes alias in more than 10% of")
+    assert "eased above a field RMS of 0.5 stress scales, for dense fringes" in lines[1]

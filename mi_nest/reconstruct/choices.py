@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataset import Dataset
-from .config import NO_REGULARISER, REGULARISED, OptimizeConfig
-from .fields import DEFAULT_RESOLUTIONS, GRID_NODE_LIMIT, MIN_NODES_ACROSS, grid_shape
+from .config import DENSE_REGULARISED, NO_REGULARISER, REGULARISED, OptimizeConfig
+from .fields import DEFAULT_RESOLUTIONS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT, MIN_NODES_ACROSS, grid_shape
 
 METHOD_NAMES = {"product": "NeST-general (a product of exact steps)", "magnus4": "4th-order Magnus steps",
                 "linear": "NeST-approx (the linear model)", "two-step": "the Two-step baseline"}
@@ -38,9 +38,15 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
     field = settled.field
     if field.kind == "grid":
         nx, ny, nz = grid_shape(field.resolution, extent)
-        why = ("--resolution" if asked.field.resolution is not None else
-               f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
-               f"{MIN_NODES_ACROSS} across the thinnest side")
+        aliased = (dataset.index.get("fringe_aliasing") or {}).get("mean_fraction", 0.0)
+        if asked.field.resolution is not None:
+            why = "--resolution"
+        elif aliased > DENSE_FRINGES_SHARE:
+            why = (f"the finest default: the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the "
+                   "pixels")
+        else:
+            why = (f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
+                   f"{MIN_NODES_ACROSS} across the thinnest side")
         representation = f"grid {nx}x{ny}x{nz} ({why})"
     else:
         why = ("--kind" if asked.field.kind != "auto" else
@@ -54,6 +60,9 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
     if regulariser == REGULARISED:
         smoothing = ("the targets' smoothness, eased above a field RMS of "
                      f"{regulariser.relative_to:g} stress scales")
+    elif regulariser == DENSE_REGULARISED:
+        smoothing = (f"the targets' smoothness eased above a field RMS of {regulariser.relative_to:g} stress "
+                     "scales, for dense fringes")
     elif regulariser == NO_REGULARISER:
         smoothing = "no regulariser"
     else:

@@ -406,6 +406,13 @@ class Run:
         self.iterate_sums = {name: type(parameters[name])(total) for name, total in saved.averages.items()}
         self.iterates_averaged = saved.iterates_averaged
 
+    def second_moment(self) -> np.ndarray | None:
+        """A grid's Adam second moment (its nodes' five components, flat), the trust map's curvature; None for
+        networks."""
+        if self.field.kind != "grid":
+            return None
+        return adam_moments(self.optimizer)["grid"][2]
+
     def result(self) -> Reconstruction:
         """The reconstruction: the field holds the mean of the averaged iterates where there are any."""
         if self.iterates_averaged:

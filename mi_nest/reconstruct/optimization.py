@@ -72,7 +72,8 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         truth = scene_field(truth_scene(scene, dataset.index.get("source") or {}, str(dataset.directory)))
 
     low, high = specimen_bounds(shapes)
-    asked, config = config, settle(config, high - low)
+    aliased_share = (dataset.index.get("fringe_aliasing") or {}).get("mean_fraction", 0.0)
+    asked, config = config, settle(config, high - low, aliased_share)
     chosen = choices(asked, config, high - low, dataset)
     if progress:
         print("\n".join(chosen), flush=True)
@@ -100,7 +101,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         aliasing = dataset.index.get("fringe_aliasing")
         if aliasing:
             result.metrics["aliased_share"] = aliasing["mean_fraction"]
-        trust = trust_map(scene, dataset, result.field, predictions, config.optimiser.mask)
+        trust = trust_map(scene, dataset, result.field, predictions, config.optimiser.mask, run.second_moment())
         result.metrics["trust"] = trust.summary()
         if output is not None:
             result.save(output)

@@ -7,18 +7,21 @@ Four things are measured on a lattice over the specimen (a grid's own nodes):
   the mean stress ``p`` that balances it best (:mod:`~mi_nest.reconstruct.equilibrium`), the largest of the
   cells around the node, averaged over its 3 x 3 x 3 neighbourhood (stress scales per box length). A true field
   leaves only its discretisation; a wrong one does not balance. This is the ``uncertainty``: on the accuracy
-  suite's cases it ranks the actual error with Spearman correlations of 0.50 to 0.74
+  suite's twelve grid cases it ranks the actual error with Spearman correlations of 0.51 to 0.91
   (``benchmarks/trust_ranking.py``, docs/reconstruction.md);
 
 - ``coverage``: the share of the training views whose specimen pixels have a ray through the node;
 - ``direction_spread``: ``3 lambda_min`` of the mean ``d d^T`` over those rays (1: directions from all around,
   0: all in one plane, where the tomography cannot tell some components apart);
-- ``heldout_residual``: the mean L1 error of the 16 intensities of the held-out pixels whose rays cross the node.
+- ``heldout_residual``: the mean L1 error of the 16 intensities of the held-out pixels whose rays cross the node;
+- ``curvature_spread`` (grids): a spread estimate from the loss's curvature, ``1 / sqrt`` of the node's mean
+  squared gradient over the run's last steps (Adam's second moment), relative to its median.
 
 Rays are the cameras' straight lines, sampled along the box at a fraction of the node spacing and splatted to
 the nearest node; refraction bends them in the data, not here (a measure of observation, not a render).
 The uncertainty is relative (a ranking of the nodes by how far to trust them), not an error bar in MPa; the
-observation terms and the held-out residual ranked the error far worse (0.01 to 0.48) and are reported beside it.
+other terms ranked the error far worse (the curvature spread -0.16 to 0.49, the observation terms and the held-out
+residual -0.18 to 0.74 but mostly below 0.4) and are reported beside it.
 """
 from __future__ import annotations
 
@@ -51,7 +54,7 @@ LATTICE = 48
 SAMPLES_PER_SPACING = 2
 TRUST_FILE = "trust.npz"
 # What a trust map holds per node, the uncertainty first.
-TERMS = ("uncertainty", "coverage", "direction_spread", "heldout_residual")
+TERMS = ("uncertainty", "coverage", "direction_spread", "heldout_residual", "curvature_spread")
 
 
 @dataclass
@@ -66,6 +69,9 @@ class TrustMap:
     imbalance: np.ndarray
     view_residuals: list          # the held-out views' mean L1 residual over their specimen pixels
     views: list                   # their rotation positions
+    # Grids: 1 / sqrt of the mean squared loss gradient per node, relative to its median (None for networks, and
+    # in maps written before it): a spread estimate from the loss's curvature.
+    curvature_spread: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -85,6 +91,8 @@ class TrustMap:
         """``name`` at ``points`` (N, 3), from the nearest node; a node the term was not measured at (a cell
         outside the part, a node no ray reached) takes its nearest measured node's value."""
         values = getattr(self, name)
+        if values is None:
+            return np.full(len(points), np.nan)
         measured = np.isfinite(values)
         if not measured.any():
             return np.full(len(points), np.nan)
@@ -97,8 +105,9 @@ class TrustMap:
         return filled[index[:, 2], index[:, 1], index[:, 0]]
 
     def point_data(self, points: np.ndarray) -> dict[str, np.ndarray]:
-        """The terms at ``points`` under the names an export writes them (``trust_uncertainty``...)."""
-        return {f"trust_{name}": self.at(points, name) for name in TERMS}
+        """The terms at ``points`` under the names an export writes them (``trust_uncertainty``...); a term the
+        map does not hold (a network's curvature spread) is left out."""
+        return {f"trust_{name}": self.at(points, name) for name in TERMS if getattr(self, name) is not None}
 
     def summary(self) -> dict:
         """What ``reconstruction.json`` records."""
@@ -115,14 +124,16 @@ class TrustMap:
             np.savez_compressed(tmp, bbox_min=self.bbox_min, bbox_max=self.bbox_max, coverage=self.coverage,
                                 direction_spread=self.direction_spread, heldout_residual=self.heldout_residual,
                                 imbalance=self.imbalance,
-                                view_residuals=np.asarray(self.view_residuals), views=np.asarray(self.views))
+                                view_residuals=np.asarray(self.view_residuals), views=np.asarray(self.views),
+                                **({} if self.curvature_spread is None else
+                                   {"curvature_spread": self.curvature_spread}))
 
     @classmethod
     def load(cls, path: str | Path) -> TrustMap:
         with np.load(path) as data:
             return cls(data["bbox_min"], data["bbox_max"], data["coverage"], data["direction_spread"],
                        data["heldout_residual"], data["imbalance"], data["view_residuals"].tolist(),
-                       data["views"].tolist())
+                       data["views"].tolist(), data["curvature_spread"] if "curvature_spread" in data else None)
 
 
 def _quantile(values, q):
@@ -136,9 +147,11 @@ def lattice_of(field: TrainableField) -> tuple[np.ndarray, np.ndarray, tuple[int
 
 
 def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, predictions: dict[int, np.ndarray],
-              mask: str | None = "mask.dolp") -> TrustMap:
+              mask: str | None = "mask.dolp", second_moment: np.ndarray | None = None) -> TrustMap:
     """The :class:`TrustMap` of ``field`` reconstructed from ``dataset``; ``predictions``: its intensities in the
-    held-out views (:func:`~mi_nest.reconstruct.evaluation.heldout_predictions`)."""
+    held-out views (:func:`~mi_nest.reconstruct.evaluation.heldout_predictions`); ``second_moment``: a grid's
+    Adam second moment at the end of its run, its nodes' five components in the grid's order (flat or
+    (nz, ny, nx, 5)), for the curvature spread."""
     low, high, shape = lattice_of(field)
     splat = _Splat(low, high, shape)
     view_rays = ViewRays(scene, dataset)
@@ -171,8 +184,23 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, predicti
     spread = 3.0 * np.clip(np.linalg.eigvalsh(tensor)[:, 0], 0.0, None)
     residual = np.where(weight_sum > 0, residual_sum / np.maximum(weight_sum, 1e-30), np.nan)
     coverage = np.where(reached, seen_by / max(len(chosen), 1), 0.0)
+    balance = imbalance(scene, field, shape)
+    curvature = None
+    if second_moment is not None and np.size(second_moment) == 5 * balance.size:
+        curvature = curvature_spread(np.reshape(second_moment, (*balance.shape, 5)), np.isfinite(balance))
     return TrustMap(low, high, coverage.reshape(nz, ny, nx), np.where(reached, spread, 0.0).reshape(nz, ny, nx),
-                    residual.reshape(nz, ny, nx), imbalance(scene, field, shape), view_residuals, views)
+                    residual.reshape(nz, ny, nx), balance, view_residuals, views, curvature)
+
+
+def curvature_spread(second_moment: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """``1 / sqrt(mean v)`` per node over its five components, relative to its median over ``inside``; NaN
+    elsewhere. With an L1 loss the minibatch gradient's mean square ``v`` (Adam's second moment, an average over
+    about its last thousand steps) grows with how strongly the pixels pull on the node: a diagonal Fisher
+    information, whose inverse square root is the node's spread."""
+    strength = np.sqrt(np.asarray(second_moment, np.float64).mean(axis=-1))
+    floor = 1e-12 * max(float(strength[inside].max()) if inside.any() else 0.0, 1e-30)
+    spread = np.where(inside, 1.0 / np.maximum(strength, floor), np.nan)
+    return spread / np.nanmedian(spread) if inside.any() else spread
 
 
 def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int]) -> np.ndarray:
