@@ -354,9 +354,9 @@ def _export(args):
               "(photoelasticity does not see the mean stress; the principal directions and von Mises are the "
               "full stress's)")
     if source.trust is not None:
+        names = ", ".join(f"trust_{name}" for name in source.trust.terms())
         print(f"{args.field}: its trust map "
-              + ("written beside it as trust_uncertainty, trust_coverage, trust_direction_spread and "
-                 "trust_heldout_residual" if Path(args.output).suffix.lower() == ".vtu"
+              + (f"written beside it as {names}" if Path(args.output).suffix.lower() == ".vtu"
                  else "is not written: 3D-TSV holds stress only (export to .vtu to have it)"))
     for path in export_scene(source.scene, args.output, args.resolution, source.field, source.is_reconstruction,
                              None if source.trust is None else source.trust.point_data):

@@ -151,7 +151,7 @@ def test_dense_fringes_choose_the_finest_grid_and_say_why(one_axis_and_two_axes)
     dataset.index["fringe_aliasing"] = {"views": 9, "of": 12, "mean_fraction": 0.19, "max_fraction": 0.4,
                                         "densest": 2.5}
     box = np.array([40.0, 40.0, 12.0])          # the stacked disks': 32 nodes from its shape alone
-    lines = choices(OptimizeConfig(), settle(OptimizeConfig(), box, 0.19), box, dataset)
+    lines = choices(OptimizeConfig(), settle(OptimizeConfig(), box, 0.19), box, dataset, 0.19)
     assert "fringes denser than the pixels in 19% of the specimen's pixels (up to 2.5 orders per pixel)" in lines[0]
     assert "elevations spanning" in lines[0]
     assert lines[1].startswith("chose: grid 64x64x20 (the finest default: the fringes alias in more than 10% of")

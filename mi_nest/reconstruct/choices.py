@@ -33,15 +33,16 @@ def data_facts(dataset: Dataset) -> str:
     return facts
 
 
-def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, dataset: Dataset) -> list[str]:
-    """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`)."""
+def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, dataset: Dataset,
+            aliased_share: float = 0.0) -> list[str]:
+    """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`, which
+    was given the same ``extent`` and ``aliased_share``)."""
     field = settled.field
     if field.kind == "grid":
         nx, ny, nz = grid_shape(field.resolution, extent)
-        aliased = (dataset.index.get("fringe_aliasing") or {}).get("mean_fraction", 0.0)
         if asked.field.resolution is not None:
             why = "--resolution"
-        elif aliased > DENSE_FRINGES_SHARE:
+        elif aliased_share > DENSE_FRINGES_SHARE:
             why = (f"the finest default: the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the "
                    "pixels")
         else:

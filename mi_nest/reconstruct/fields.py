@@ -24,6 +24,7 @@ import numpy as np
 
 from ..fields.base import StressField
 from ..io.grid import grid_nodes
+from ..physics.aliasing import UNRESOLVED_SHARE
 from . import equilibrium
 from .config import DENSE_REGULARISED, REGULARISED, FieldConfig, OptimizeConfig, Regulariser
 
@@ -40,7 +41,8 @@ MIN_NODES_ACROSS = 10
 # Data whose fringes alias in more than this share of the specimen's pixels get the finest default grid and
 # DENSE_REGULARISED: the stacked disks at 300 N (19% aliased) ended at 26.5% error on 64 nodes against 41.4% on
 # the 32 their shape gives (the accuracy suite, 10 minutes each).
-DENSE_FRINGES_SHARE = 0.10
+# The share is the one past which reconstruct refuses a dataset without --allow-aliased.
+DENSE_FRINGES_SHARE = UNRESOLVED_SHARE
 
 
 def default_resolution(extent: np.ndarray, aliased_share: float = 0.0) -> int:

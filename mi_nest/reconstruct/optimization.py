@@ -72,9 +72,10 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         truth = scene_field(truth_scene(scene, dataset.index.get("source") or {}, str(dataset.directory)))
 
     low, high = specimen_bounds(shapes)
-    aliased_share = (dataset.index.get("fringe_aliasing") or {}).get("mean_fraction", 0.0)
+    aliasing = dataset.index.get("fringe_aliasing")
+    aliased_share = aliasing["mean_fraction"] if aliasing else 0.0
     asked, config = config, settle(config, high - low, aliased_share)
-    chosen = choices(asked, config, high - low, dataset)
+    chosen = choices(asked, config, high - low, dataset, aliased_share)
     if progress:
         print("\n".join(chosen), flush=True)
     scale = stress_scale(media, low, high)
@@ -98,9 +99,8 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
                                           config.reporting.evaluate_views)
         result.metrics.update(evaluate(scene, dataset, result.field, truth, predictions, config.optimiser.mask,
                                        shapes))
-        aliasing = dataset.index.get("fringe_aliasing")
         if aliasing:
-            result.metrics["aliased_share"] = aliasing["mean_fraction"]
+            result.metrics["aliased_share"] = aliased_share
         trust = trust_map(scene, dataset, result.field, predictions, config.optimiser.mask, run.second_moment())
         result.metrics["trust"] = trust.summary()
         if output is not None:

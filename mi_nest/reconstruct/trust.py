@@ -104,10 +104,13 @@ class TrustMap:
         index = np.clip(index, 0, counts - 1)
         return filled[index[:, 2], index[:, 1], index[:, 0]]
 
+    def terms(self) -> list[str]:
+        """The :data:`TERMS` this map holds (a network's has no curvature spread)."""
+        return [name for name in TERMS if getattr(self, name) is not None]
+
     def point_data(self, points: np.ndarray) -> dict[str, np.ndarray]:
-        """The terms at ``points`` under the names an export writes them (``trust_uncertainty``...); a term the
-        map does not hold (a network's curvature spread) is left out."""
-        return {f"trust_{name}": self.at(points, name) for name in TERMS if getattr(self, name) is not None}
+        """The terms at ``points`` under the names an export writes them (``trust_uncertainty``...)."""
+        return {f"trust_{name}": self.at(points, name) for name in self.terms()}
 
     def summary(self) -> dict:
         """What ``reconstruction.json`` records."""
