@@ -177,8 +177,34 @@ def test_ray_batches_come_from_inside_the_mask_of_the_training_rotations(disk_da
 
 
 def _bytes_held(view):
-    """Counted from the arrays a cached view holds, not from its own ``nbytes``."""
-    return sum(a.nbytes for a in (*view.images.values(), view.measured, *view.mask_pixels.values()))
+    """Counted from the arrays a cached view holds (each once: the measurements' images are slices of their
+    stack), not from its own ``nbytes``."""
+    others = [a for a in view.images.values() if not np.shares_memory(a, view.measured)]
+    return sum(a.nbytes for a in (*others, view.measured, *view.mask_pixels.values()))
+
+
+def test_a_cached_view_holds_its_measurements_once(disk_dataset):
+    dataset = Dataset(disk_dataset[0])
+    view = dataset._decoded(0)
+    view.pixels_inside("mask.dolp")
+    assert view.nbytes == _bytes_held(view)
+    masks = len(view.images) - len(dataset.channels)
+    assert view.nbytes < view.measured.nbytes * (1 + (masks + 1) / len(dataset.channels))
+    images = dataset.view(0)
+    for i, name in enumerate(dataset.channels):
+        np.testing.assert_array_equal(images[name], dataset.measurements(0)[..., i])
+
+
+def test_the_cache_takes_half_the_free_memory_and_at_least_a_gibibyte(disk_dataset, monkeypatch):
+    import types
+
+    import psutil
+
+    from mi_nest.dataset.loader import MIN_CACHE_BYTES
+    for free, budget in ((64 << 30, 32 << 30), (1 << 29, MIN_CACHE_BYTES)):
+        monkeypatch.setattr(psutil, "virtual_memory", lambda free=free: types.SimpleNamespace(available=free))
+        assert Dataset(disk_dataset[0])._cache_bytes == budget
+    assert Dataset(disk_dataset[0], cache_bytes=12345)._cache_bytes == 12345
 
 
 @pytest.mark.parametrize("views_held", [None, 3])

@@ -1,8 +1,9 @@
 """``mi_nest.Dataset``: lazy access to a multi-axis polariscope dataset on disk.
 
 Views are decoded from their EXR on first use and kept in an LRU cache of
-bounded size (1 GiB by default: a 1024-view dataset at 64 x 64 stays whole, so
-training decodes every file once), so a dataset larger than memory streams.
+bounded size (by default half the memory free when the dataset is opened, and
+at least 1 GiB: a dataset that fits is decoded once, the shipped scene's 1024
+views at 256 x 256 included), so a dataset larger than memory streams.
 Training draws random rays across rotations; evaluation reads whole views.
 """
 from __future__ import annotations
@@ -24,24 +25,32 @@ if TYPE_CHECKING:
     from ..physics.polariscope import Polariscope
 
 
-# Memory the decoded views may hold, by default.
-CACHE_BYTES = 1 << 30
+# The least memory the decoded views may hold by default; they may take half of what is free.
+MIN_CACHE_BYTES = 1 << 30
 # Relative distance below full scale that still reads as full scale: half-float rotation files round
 # values within 2^-11 of 1 to 1.
 FULL_SCALE_ROUNDING = 1e-3
+
+
+def default_cache_bytes() -> int:
+    """Half the memory free now, and at least :data:`MIN_CACHE_BYTES`."""
+    import psutil
+    return max(MIN_CACHE_BYTES, psutil.virtual_memory().available // 2)
 
 
 class _DecodedView:
     """One rotation's images, its measurements stacked as ``(H, W, C)`` and its mask pixels."""
 
     def __init__(self, images, channels):
-        self.images = images
         self.measured = np.stack([images[n] for n in channels], axis=-1)
         self.measured.flags.writeable = False   # shared by every caller
         self.measured_pixels = self.measured.reshape(-1, len(channels))     # a view: (H * W, C)
+        # The measurements' images are slices of their stack, not a second copy: a view held twice its size.
+        self.images = {**images, **{n: self.measured[..., i] for i, n in enumerate(channels)}}
         self.mask_pixels = {}
-        # Bytes held: the images, their stacked copy and the pixel indices of the masks asked for so far.
-        self.nbytes = sum(a.nbytes for a in images.values()) + self.measured.nbytes
+        # Bytes held: the stacked measurements, the other images (masks) and the pixel indices of the masks
+        # asked for so far.
+        self.nbytes = self.measured.nbytes + sum(a.nbytes for n, a in images.items() if n not in channels)
 
     def pixels_inside(self, mask: str | None) -> np.ndarray:
         """Flat indices of the pixels where ``mask`` is set (None: all)."""
@@ -56,18 +65,19 @@ class Dataset:
     """A multi-axis polariscope dataset on disk (``dataset.json`` and one EXR per rotation), simulated by
     ``mi-nest simulate`` or captured by ``mi-nest acquire``: docs/datasets.md.
 
-    Views are read when first asked for and kept in a cache of at most ``cache_bytes``. ``rotations`` lists
-    each rotation's record (angles, camera ``to_world``, ``split``: ``train`` or ``test``); ``index`` is the
-    whole ``dataset.json`` (its ``source`` names the scene and defines a simulation was rendered from);
-    ``resolution`` is ``(width, height)``; ``channels`` the 16 measurements' names. A dataset that an
-    interrupted run left incomplete is refused unless ``allow_incomplete``.
+    Views are read when first asked for and kept in a cache of at most ``cache_bytes`` (default: half the
+    memory free now, at least 1 GiB). ``rotations`` lists each rotation's record (angles, camera ``to_world``,
+    ``split``: ``train`` or ``test``); ``index`` is the whole ``dataset.json`` (its ``source`` names the scene
+    and defines a simulation was rendered from); ``resolution`` is ``(width, height)``; ``channels`` the 16
+    measurements' names. A dataset that an interrupted run left incomplete is refused unless
+    ``allow_incomplete``.
 
     >>> dataset = mi_nest.Dataset("data/disk")
     >>> images = dataset.view(0)                    # {channel: (H, W) image} of the first rotation
     >>> dataset.split("test")                       # positions of the held-out rotations
     """
 
-    def __init__(self, directory: str | Path, allow_incomplete: bool = False, cache_bytes: int = CACHE_BYTES):
+    def __init__(self, directory: str | Path, allow_incomplete: bool = False, cache_bytes: int | None = None):
         self.directory = Path(directory)
         self.index = fmt.read_index(self.directory)
         if not self.index["complete"] and not allow_incomplete:
@@ -81,7 +91,7 @@ class Dataset:
         self.channels = tuple(self.index["channels"])
         self._cache = OrderedDict()
         self._splits = {}
-        self._cache_bytes = int(cache_bytes)
+        self._cache_bytes = default_cache_bytes() if cache_bytes is None else int(cache_bytes)
 
     @cached_property
     def fingerprint(self) -> str:
