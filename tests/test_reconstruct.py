@@ -365,7 +365,7 @@ def test_the_grid_floor_is_a_floor_no_grid_scores_below():
     floor = metrics.grid_floor(field, truth, points)
     assert 0 < floor < metrics.best_fit_floor(field, truth, scene, shapes, points, fit_points_per_axis=40)
     assert floor < metrics.representation_floor(field, truth, points)
-    nodes = metrics._fitted_nodes(field, truth, points)
+    nodes = metrics.fitted_nodes(field, truth, points)
     assert metrics._grid_error(field, nodes, truth, points) == pytest.approx(floor)
     rng = np.random.default_rng(3)
     for size in (1e-3, 1e-2, 1e-1):      # any grid nearby scores worse: the fit is the minimum

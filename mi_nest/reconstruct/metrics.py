@@ -98,7 +98,7 @@ def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, s
     the nodal values (:func:`representation_floor`). Only for grids (None otherwise)."""
     if getattr(field, "kind", None) != "grid":
         return None
-    return _grid_error(field, _fitted_nodes(field, truth, evaluation_points(scene, shapes, fit_points_per_axis)),
+    return _grid_error(field, fitted_nodes(field, truth, evaluation_points(scene, shapes, fit_points_per_axis)),
                        truth, points)
 
 
@@ -109,10 +109,10 @@ def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) ->
     minimises it: no optimiser of this grid scores lower (up to the solver's tolerance). Only for grids."""
     if getattr(field, "kind", None) != "grid":
         return None
-    return _grid_error(field, _fitted_nodes(field, truth, points), truth, points)
+    return _grid_error(field, fitted_nodes(field, truth, points), truth, points)
 
 
-def _fitted_nodes(field, truth, fit_points):
+def fitted_nodes(field: TrainableField, truth: StressField, fit_points: np.ndarray) -> np.ndarray:
     """The nodes (five stored components, x fastest) of the grid like ``field`` that fits ``truth`` at
     ``fit_points`` in the least-squares sense: the normal equations, factorised once for the five components (an
     iterative solver took minutes where nodes touch the points with tiny weights, as in the kitten's ears)."""
