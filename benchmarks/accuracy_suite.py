@@ -88,6 +88,10 @@ DIAGNOSTIC_CASES = [
     Case("disk_300N_relative05", "disk_compression", {"load": 300, "contact_width": 4},
          flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="disk_300N",
          note="diagnostic: the 300 N disk with the smoothness eased from a field RMS of 0.5 (the default 1)"),
+    *(Case(f"stacked_disks_seed{seed}", "stacked_disks", {"load": 300, "contact_width": 4},
+           flags=("--option", f"seed={seed}"), target=0.10, same_data_as="stacked_disks",
+           note=f"diagnostic: the stacked disks with seed {seed} (the run-to-run spread of a dense case)")
+      for seed in (1, 2)),
     Case("stacked_disks_relative05", "stacked_disks", {"load": 300, "contact_width": 4},
          flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="stacked_disks",
          note="diagnostic: the stacked disks with the smoothness eased from a field RMS of 0.5 (the default 1)"),

@@ -55,9 +55,8 @@ def nodes_of(field) -> np.ndarray:
     return np.array(field.parameters()["grid"]).reshape(-1, 5)
 
 
-def with_nodes(field, nodes: np.ndarray):
+def with_nodes(field, nodes: np.ndarray) -> None:
     field.assign({"grid": mi.TensorXf(nodes.reshape(*field.shape[::-1], 5).astype(np.float32))})
-    return field
 
 
 class ViewLoss:
@@ -81,7 +80,7 @@ class ViewLoss:
             self.rays.append(view_rays.rays(*(np.repeat(a, samples) for a in
                                               (np.full(len(pixels), position), rows, columns)),
                                             jitter=stratified(len(pixels), samples, rng)))
-            self.measured.append(dataset.measurements(position).reshape(-1, 16)[pixels])
+            self.measured.append(dataset.measurements(position).reshape(-1, len(dataset.channels))[pixels])
 
     def __call__(self, field) -> float:
         total = count = 0.0
@@ -89,7 +88,7 @@ class ViewLoss:
             state, blocked, _ = self.integrator.trace_rays(self.scene, rays, right, field=field)
             predicted = np.stack([np.array(c) for c in intensities(self.integrator.jones(state, blocked),
                                                                    self.scopes)], axis=-1)
-            error = np.abs(predicted.reshape(len(measured), self.samples, 16).mean(axis=1) - measured)
+            error = np.abs(predicted.reshape(*measured.shape[:1], self.samples, -1).mean(axis=1) - measured)
             total += float(error.sum())
             count += error.size
         return total / max(count, 1.0)
@@ -129,8 +128,7 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
     found_verdict = verdict(rows)
     for row in rows + [exact]:
         row.update(verdict=found_verdict, views=f"{len(train.positions)} train, {len(test.positions)} held out",
-                   pixel_samples=samples,
-                   seconds=round(seconds, 1), cpu=cpu_name())
+                   pixel_samples=samples, seconds=round(seconds, 1), cpu=cpu_name())
     return rows + [exact], explain(rows, exact)
 
 
