@@ -7,7 +7,8 @@ import numpy as np
 
 from ..dataset import Dataset
 from .config import DENSE_REGULARISED, NO_REGULARISER, REGULARISED, OptimizeConfig
-from .fields import DEFAULT_RESOLUTIONS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT, MIN_NODES_ACROSS, grid_shape
+from .fields import (DEFAULT_RESOLUTIONS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT, MIN_NODES_ACROSS, dense_fringes,
+                     grid_shape)
 
 METHOD_NAMES = {"product": "NeST-general (a product of exact steps)", "magnus4": "4th-order Magnus steps",
                 "linear": "NeST-approx (the linear model)", "two-step": "the Two-step baseline"}
@@ -42,7 +43,7 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
         nx, ny, nz = grid_shape(field.resolution, extent)
         if asked.field.resolution is not None:
             why = "--resolution"
-        elif aliased_share > DENSE_FRINGES_SHARE:
+        elif dense_fringes(aliased_share):
             why = (f"the finest default: the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the "
                    "pixels")
         else:

@@ -190,8 +190,8 @@ class Regulariser:
 REGULARISED = Regulariser(smoothness=1.3e-4, smoothness_edge=5.0, average_last=0.1, relative_to=1.0)
 # The grids' default where the data's fringes alias in more than a tenth of the pixels (fields.settle): the
 # smoothness eased from half the field RMS. The 300 N disk (15% aliased) ended at 18.9% error with it against
-# 39.7% with REGULARISED (the accuracy suite, 10 minutes each); the stacked disks, on 64 nodes, at 30.2% against
-# 26.5% (one run each).
+# 39.7% with REGULARISED (the accuracy suite, 10 minutes each, one run); the stacked disks, on 64 nodes, at 29.6%
+# to 30.2% over three seeds against 26.5% (one run).
 DENSE_REGULARISED = replace(REGULARISED, relative_to=0.5)
 # The MLP's default steps, 50 times smaller than a grid's: at the grids' 0.05 the paper's MLP ran away on the disk
 # target (diverged at iteration 100 of a 10-minute run). In 2 minutes (104 iterations on 2 cores) it ended at
@@ -245,13 +245,12 @@ class OptimizeConfig:
         if unknown:
             raise ValueError(f"unknown option(s) {unknown}; optimize accepts "
                              f"{sorted(set().union(*names.values()))} and the groups {list(groups)}")
-        # The field's kind, which the optimiser's defaults follow, before its group is set.
-        kind = options.get("kind", getattr(options.get("field"), "kind", FieldConfig.kind))
-        for name, group in groups.items():
-            given = options.get(name)
+        # The field first: the regulariser's and the optimiser's defaults follow its kind.
+        for name in sorted(groups, key=lambda name: name != "field"):
+            group, given = groups[name], options.get(name)
             if name == "regulariser" and given in (None, REGULARISED):
                 given = REGULARISED if self.field.kind in ("grid", "auto") else NO_REGULARISER
-            elif name == "optimiser" and kind == "mlp" and given in (None, Optimiser()):
+            elif name == "optimiser" and self.field.kind == "mlp" and given in (None, Optimiser()):
                 given = MLP_OPTIMISER
             elif given is None:
                 given = group()

@@ -45,11 +45,17 @@ MIN_NODES_ACROSS = 10
 DENSE_FRINGES_SHARE = UNRESOLVED_SHARE
 
 
+def dense_fringes(aliased_share: float) -> bool:
+    """Whether data whose fringes alias in ``aliased_share`` of the specimen's pixels take the dense-fringe
+    defaults (past :data:`DENSE_FRINGES_SHARE`)."""
+    return aliased_share > DENSE_FRINGES_SHARE
+
+
 def default_resolution(extent: np.ndarray, aliased_share: float = 0.0) -> int:
     """The grid resolution for a specimen of bounding-box ``extent`` (mm): the coarsest of
     :data:`DEFAULT_RESOLUTIONS` with :data:`MIN_NODES_ACROSS` nodes across its thinnest side (the finest
     where none has, or where the data's fringes alias in more than :data:`DENSE_FRINGES_SHARE` of the pixels)."""
-    if aliased_share > DENSE_FRINGES_SHARE:
+    if dense_fringes(aliased_share):
         return DEFAULT_RESOLUTIONS[-1]
     for resolution in DEFAULT_RESOLUTIONS:
         if min(grid_shape(resolution, extent)) >= MIN_NODES_ACROSS:
@@ -77,7 +83,7 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
     default regulariser becomes :data:`~.config.DENSE_REGULARISED`."""
     resolution = config.field.resolution or default_resolution(extent, aliased_share)
     settled = config.settled(choose_kind(replace(config.field, resolution=resolution), extent), resolution)
-    if aliased_share > DENSE_FRINGES_SHARE and settled.regulariser == REGULARISED:
+    if dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     return settled
 
