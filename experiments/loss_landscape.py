@@ -27,16 +27,13 @@ import time
 from pathlib import Path
 
 import common
-import mitsuba as mi
 import numpy as np
 
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
 from mi_nest.reconstruct import Reconstruction, metrics
-from mi_nest.reconstruct.evaluation import view_mask
-from mi_nest.reconstruct.losses import intensities
-from mi_nest.reconstruct.rays import ViewRays, stratified
+from mi_nest.reconstruct.evaluation import SampledViewLoss
 from mi_nest.scene import specimen_shapes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -48,50 +45,6 @@ STEPS = np.linspace(0.0, 1.0, 11)
 TIE = 0.02
 # Where the truth's best grid keeps this share of the result's error, most of that error is the grid's.
 FLOOR_SHARE = 0.5
-
-
-def nodes_of(field) -> np.ndarray:
-    """A grid field's nodes, ``(nx * ny * nz, 5)`` stored components, x fastest."""
-    return np.array(field.parameters()["grid"]).reshape(-1, 5)
-
-
-def with_nodes(field, nodes: np.ndarray) -> None:
-    field.assign({"grid": mi.TensorXf(nodes.reshape(*field.shape[::-1], 5).astype(np.float32))})
-
-
-class ViewLoss:
-    """The mean L1 error of the 16 intensities over the mask pixels of a fixed sample of ``split`` views, each
-    pixel the mean of ``samples`` stratified rays across it (as the camera integrates, and the finest stage fits:
-    at pixel centres the aliased pixels miss every field alike, and hide what tells fields apart)."""
-
-    def __init__(self, scene, dataset, integrator, mask, split: str, views: int, samples: int):
-        positions = dataset.split(split)
-        self.positions = positions[::max(1, len(positions) // views)][:views]
-        self.scene, self.integrator, self.samples = scene, integrator, samples
-        self.scopes = dataset.polariscopes()
-        view_rays = ViewRays(scene, dataset)
-        rng = np.random.default_rng(0)      # the same rays for every field on the line
-        self.rays, self.measured = [], []
-        for position in self.positions:
-            inside = view_mask(dataset, position, mask)
-            pixels = np.arange(dataset.resolution[0] * dataset.resolution[1]) if inside is None \
-                else np.flatnonzero(inside)
-            rows, columns = np.divmod(pixels, dataset.resolution[0])
-            self.rays.append(view_rays.rays(*(np.repeat(a, samples) for a in
-                                              (np.full(len(pixels), position), rows, columns)),
-                                            jitter=stratified(len(pixels), samples, rng)))
-            self.measured.append(dataset.measurements(position).reshape(-1, len(dataset.channels))[pixels])
-
-    def __call__(self, field) -> float:
-        total = count = 0.0
-        for (rays, right), measured in zip(self.rays, self.measured):
-            state, blocked, _ = self.integrator.trace_rays(self.scene, rays, right, field=field)
-            predicted = np.stack([np.array(c) for c in intensities(self.integrator.jones(state, blocked),
-                                                                   self.scopes)], axis=-1)
-            error = np.abs(predicted.reshape(*measured.shape[:1], self.samples, -1).mean(axis=1) - measured)
-            total += float(error.sum())
-            count += error.size
-        return total / max(count, 1.0)
 
 
 def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], str]:
@@ -108,15 +61,15 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
     points = metrics.evaluation_points(scene, shapes)
     error_of = metrics.ErrorProbe(truth, points)
     best = metrics.fitted_nodes(field, truth, metrics.evaluation_points(scene, shapes, 3 * metrics.EVALUATION_POINTS))
-    found = nodes_of(field)
+    found = field.nodes()
     integrator = result.integrator(scene)
     mask = result.config.optimiser.mask
-    train = ViewLoss(scene, dataset, integrator, mask, "train", views, samples)
-    test = ViewLoss(scene, dataset, integrator, mask, "test", views, samples)
+    train = SampledViewLoss(scene, dataset, integrator, mask, "train", views, samples)
+    test = SampledViewLoss(scene, dataset, integrator, mask, "test", views, samples)
     regulariser = result.config.regulariser
     rows = []
     for t in STEPS:
-        with_nodes(field, (1.0 - t) * found + t * best)
+        field.set_nodes((1.0 - t) * found + t * best)
         rms = field.rms() if regulariser.relative_to is not None else None
         penalty = field.smoothness_penalty(regulariser.smoothness_at(1.0, rms), regulariser.edge_at(rms))
         rows.append({"case": directory.name, "t": round(float(t), 2), "deviatoric_error": round(error_of(field), 4),

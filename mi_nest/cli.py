@@ -157,6 +157,10 @@ def _parser():
     reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
                                   "is the baseline: per-view unwrapping, then linear tomography)")
+    reconstruct.add_argument("--start", metavar="FIELD",
+                             help="start from this field instead of zero: an FEM model of the part (3D-TSV .TSV, "
+                                  "grid or mesh .npz) or a reconstruction directory; it chooses the fringe order "
+                                  "that dense fringes leave ambiguous (docs/reconstruction.md, \"A start\")")
     reconstruct.add_argument("--allow-aliased", action="store_true",
                              help="reconstruct a dataset whose fringes are denser than the pixels in over 10%% of "
                                   "the specimen (refused otherwise: their phase is lost; the result is marked)")
@@ -499,7 +503,7 @@ def _reconstruction_options(args):
                **({"deterministic": True} if args.deterministic else {})}
     for name, text in args.options:
         options[name.replace("-", "_")] = option_value(name.replace("-", "_"), text)
-    for name in ("iterations", "resolution", "method"):
+    for name in ("iterations", "resolution", "method", "start"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     if args.minutes is not None:

@@ -74,5 +74,8 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
     schedule = settled.schedule
     budget = f"{schedule.iterations:,} iterations" + (
         "" if schedule.time_limit is None else f" or {schedule.time_limit / 60:.3g} minutes, whichever ends first")
+    if schedule.start is not None:
+        budget += f"; from the start field {schedule.start}, on the final grid alone (no coarse stages or path " \
+                  "curriculum)"
     return [f"data: {data_facts(dataset)}",
             f"chose: {representation}; {METHOD_NAMES[settled.model.method]} in {step}; {smoothing}; {budget}"]

@@ -48,6 +48,13 @@ class Schedule:
     finest_stage: float = 0.5        # coarse to fine: share of the run on the final grid (the coarser share the rest)
     path_curriculum: float = 0.5     # share of the run over which the longest path admitted to the loss grows
     warm_start: float = 0.0          # share of the run fitting the Two-step's unwrapped data before the joint fit
+    # A field to start from (a reconstruction directory or a stress file, such as an FEM model of the part): a
+    # grid fits it and runs on its final grid alone, without the coarse stages and the path curriculum
+    # (reconstruct/start.py).
+    start: str | None = None
+    # The start is taken at the load factor within 1 +- this whose images fit a sample of the training views best
+    # (stress follows the load in linear elasticity, and a model's load is rarely the test's); 0: as given.
+    start_scale_range: float = 0.3
 
     def __post_init__(self):
         whole_number("iterations", self.iterations)
@@ -56,6 +63,7 @@ class Schedule:
         _require_share("path_curriculum", self.path_curriculum, of="the iterations", closed=True)
         _require_share("warm_start", self.warm_start)
         _require_share("finest_stage", self.finest_stage, closed=True, positive=True)
+        _require_share("start_scale_range", self.start_scale_range, of="the start's load")
 
 
 @dataclass(frozen=True)
@@ -266,6 +274,11 @@ class OptimizeConfig:
         if self.schedule.warm_start and self.model.method == "two-step":
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")
+        if self.schedule.start is not None and self.field.kind in ("hashgrid", "mlp"):
+            raise ValueError(f"a start field is fitted by grids only, and this field is a '{self.field.kind}' "
+                             "(give kind='grid', or drop start)")
+        if self.schedule.start is not None and self.schedule.warm_start:
+            raise ValueError("'start' and 'warm_start' both say where the run starts: give one")
         if self.field.kind in ("hashgrid", "mlp") and self.regulariser.equilibrium:
             raise ValueError(f"the equilibrium prior acts on grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or equilibrium=0)")

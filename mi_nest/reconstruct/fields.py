@@ -80,11 +80,17 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
 def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0) -> OptimizeConfig:
     """``config`` with its field's kind and resolution decided for a specimen of bounding-box ``extent`` and data
     whose fringes alias in ``aliased_share`` of the specimen's pixels; past :data:`DENSE_FRINGES_SHARE` a grid's
-    default regulariser becomes :data:`~.config.DENSE_REGULARISED`."""
+    default regulariser becomes :data:`~.config.DENSE_REGULARISED`. A run with a start field has one stage."""
     resolution = config.field.resolution or default_resolution(extent, aliased_share)
     settled = config.settled(choose_kind(replace(config.field, resolution=resolution), extent), resolution)
     if dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
+    if settled.schedule.start is not None:
+        if settled.field.kind != "grid":
+            raise ValueError(f"a start field is fitted by grids only, and a grid at {resolution} nodes would be too "
+                             f"large here (auto chose '{settled.field.kind}'): give a lower --resolution")
+        # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
+        settled = replace(settled, schedule=replace(settled.schedule, coarse_to_fine=False, path_curriculum=0.0))
     return settled
 
 
@@ -195,6 +201,14 @@ class DeviatoricGrid(TrainableField):
 
     def assign(self, values: dict) -> None:
         self.texture.set_tensor(values["grid"])
+
+    def nodes(self) -> np.ndarray:
+        """``(nx * ny * nz, 5)``: the stored components node by node, x fastest (as ``metrics.fitted_nodes``)."""
+        return np.array(self.texture.tensor()).reshape(-1, 5)
+
+    def set_nodes(self, nodes: np.ndarray) -> None:
+        """Assign what :meth:`nodes` reads."""
+        self.assign({"grid": mi.TensorXf(np.asarray(nodes, dtype=np.float32).reshape(*self.shape[::-1], 5))})
 
     def state(self) -> dict:
         return {**super().state(), **({} if self.mean is None else {"mean": np.array(self.mean)})}

@@ -28,10 +28,12 @@ from ..scene import scene_origin, specimen_shapes
 from . import equilibrium, metrics
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import OptimizeConfig
+from .evaluation import SampledViewLoss
 from .fields import make_field, refined
 from .forward import make_integrator
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
+from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
 from .two_step import RetardanceTargets
 
 # Nodes along the longest axis of the first coarse-to-fine stage.
@@ -96,6 +98,7 @@ class Run:
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid
+        self.began_at = {}              # where a start began (start_from): recorded with the first iteration
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -114,6 +117,24 @@ class Run:
         starts = [coarse * i / (len(resolutions) - 1) for i in range(len(resolutions))] if len(resolutions) > 1 \
             else [0.0]
         return list(zip(starts, resolutions))
+
+    def start_from(self, source: str) -> None:
+        """Begin at ``source``'s field (:mod:`.start`), scaled to the load factor the training views prefer;
+        the time it takes counts against the run's budget, and where it began goes into the first iteration's
+        record (``began_at``)."""
+        began = time.perf_counter()
+        nodes = starting_nodes(self.field, start_field(source), self.scene, specimen_shapes(self.scene), source)
+        spread = self.config.schedule.start_scale_range
+        factor = 1.0
+        if spread > 0:
+            loss = SampledViewLoss(self.scene, self.dataset, self.integrator(), self.config.optimiser.mask, "train",
+                                   SCALE_VIEWS, self.finest_pixel_samples)
+            factor, _, _ = best_scale(self.field, nodes, loss, spread)
+        self.field.set_nodes(factor * nodes)
+        self.optimizer = self._optimizer()
+        spent = time.perf_counter() - began
+        self.seconds += spent
+        self.began_at = {"start": source, "start_factor": factor, "start_seconds": round(spent, 2)}
 
     def progress(self) -> float:
         """How far the run is, in [0, 1]: by iterations, or by time when a time limit comes first."""
@@ -205,7 +226,8 @@ class Run:
                 self.seconds += elapsed
                 self.history.append({"iteration": self.iteration, "loss": loss,
                                      "learning_rate": self.learning_rate(),
-                                     "seconds": round(self.seconds, 4)})
+                                     "seconds": round(self.seconds, 4),
+                                     **(self.began_at if self.iteration == 0 else {})})
                 if self.error_probe is not None and self.iteration % reporting.track_error_every == 0:
                     # Outside the timed step: following the error does not slow the run's clock.
                     self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
@@ -402,6 +424,8 @@ class Run:
         self.rng.bit_generator.state = saved.rng
         self.path_range = saved.path_range
         self.last_good = self.iteration
+        self.began_at = {k: v for k, v in (self.history[0] if self.history else {}).items()
+                         if k in ("start", "start_factor", "start_seconds")}
         parameters = self.field.parameters()
         self.iterate_sums = {name: type(parameters[name])(total) for name, total in saved.averages.items()}
         self.iterates_averaged = saved.iterates_averaged

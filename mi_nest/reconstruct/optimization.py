@@ -30,6 +30,7 @@ from .config import OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
+from .start import start_line
 from .trust import TRUST_FILE, trust_map
 
 
@@ -59,6 +60,9 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     """
     base = options.pop("config", None)
     config = OptimizeConfig(**options) if base is None else replace(base, **options)
+    if config.schedule.start is not None and Path(config.schedule.start).exists():
+        # Recorded whole: the result and a resumed run name the same file wherever they are run from.
+        config = replace(config, schedule=replace(config.schedule, start=str(Path(config.schedule.start).resolve())))
     if not isinstance(dataset, Dataset):
         dataset = Dataset(dataset)
     if not isinstance(scene, mi.Scene):
@@ -87,10 +91,17 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
             stack.enter_context(locked_directory(output))
         if config.optimiser.deterministic:
             stack.enter_context(one_thread())
-        if output is not None and resume and (Path(output) / CHECKPOINT).is_file():
+        resumed = output is not None and resume and (Path(output) / CHECKPOINT).is_file()
+        if resumed:
             run.restore(Path(output) / CHECKPOINT)
         # Ctrl-C waits for the end of an iteration, so that the checkpoint holds whole steps.
         with interrupts.deferred():
+            if config.schedule.start is not None and not resumed:
+                run.start_from(config.schedule.start)
+            if run.began_at:
+                chosen.append(start_line(run.began_at, config.schedule.start_scale_range))
+                if progress:
+                    print(chosen[-1], flush=True)
             run.loop()
         result = run.result()
         result.source["choices"] = chosen
