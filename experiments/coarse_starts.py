@@ -25,7 +25,8 @@ from scipy.stats import spearmanr
 import mi_nest
 from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
-from mi_nest.io.grid import StressGrid, save_stress_grid
+from mi_nest.fields.base import sample
+from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.optimization import stress_scale
 from mi_nest.scene import specimen_bounds, specimen_media, specimen_shapes
@@ -42,10 +43,12 @@ TRUTH_SCALES = (0.5, 0.8, 1.0, 1.5)
 
 
 def grid_file(path: Path, field, nodes: np.ndarray) -> Path:
-    """``nodes`` (five stored components per node, stress scales) of the grid ``field`` as a stress grid file."""
-    xx, yy, yz, zx, xy = (field.stress_scale * nodes[:, i] for i in range(5))
-    stress = np.stack([xx, yy, -(xx + yy), yz, zx, xy], axis=-1).reshape(*field.shape[::-1], 6)
-    save_stress_grid(path, StressGrid(stress.astype(np.float32), field.bbox_min, field.bbox_max))
+    """``nodes`` (five stored components per node, stress scales) of the grid ``field`` as a stress grid file on the
+    same nodes."""
+    field.set_nodes(nodes)
+    stress = sample(field, grid_nodes(field.bbox_min, field.bbox_max, field.shape))
+    save_stress_grid(path, StressGrid(stress.reshape(*field.shape[::-1], 6).astype(np.float32), field.bbox_min,
+                                      field.bbox_max))
     return path
 
 

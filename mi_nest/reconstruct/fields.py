@@ -414,9 +414,7 @@ def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
     """``field`` resampled onto a grid of ``resolution`` nodes along the longest axis (coarse to fine)."""
     config = replace(field.config, kind="grid", resolution=int(resolution))
     finer = DeviatoricGrid(config, field.bbox_min, field.bbox_max, field.stress_scale)
-    nx, ny, nz = finer.shape
     nodes = mi.Point3f(grid_nodes(field.bbox_min, field.bbox_max, finer.shape).T.astype(np.float32))
     with dr.suspend_grad():
-        values = np.stack([np.array(c) for c in field.deviatoric(nodes)], axis=-1)
-    finer.assign({"grid": mi.TensorXf(values.reshape(nz, ny, nx, 5).astype(np.float32))})
+        finer.set_nodes(np.stack([np.array(c) for c in field.deviatoric(nodes)], axis=-1))
     return finer

@@ -129,7 +129,7 @@ class Run:
         if spread > 0:
             loss = SampledViewLoss(self.scene, self.dataset, self.integrator(), self.config.optimiser.mask, "train",
                                    SCALE_VIEWS, self.finest_pixel_samples)
-            factor, _, _ = best_scale(self.field, nodes, loss, spread)
+            factor = best_scale(self.field, nodes, loss, spread)
         self.field.set_nodes(factor * nodes)
         self.optimizer = self._optimizer()
         spent = time.perf_counter() - began

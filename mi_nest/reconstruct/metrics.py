@@ -114,11 +114,17 @@ def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) ->
 
 def fitted_nodes(field: TrainableField, truth: StressField, fit_points: np.ndarray) -> np.ndarray:
     """The nodes (five stored components, x fastest) of the grid like ``field`` that fits ``truth`` at
-    ``fit_points`` in the least-squares sense: the normal equations, factorised once for the five components (an
-    iterative solver took minutes where nodes touch the points with tiny weights, as in the kitten's ears)."""
+    ``fit_points`` in the least-squares sense (:func:`nodes_fitting` of its stress there)."""
+    return nodes_fitting(field, sample(truth, fit_points), fit_points)
+
+
+def nodes_fitting(field: TrainableField, stress: np.ndarray, fit_points: np.ndarray) -> np.ndarray:
+    """The nodes of the grid like ``field`` whose deviator fits ``stress`` (``(N, 6)`` MPa) at ``fit_points`` in the
+    least-squares sense: the normal equations, factorised once for the five components (an iterative solver took
+    minutes where nodes touch the points with tiny weights, as in the kitten's ears)."""
     import scipy.sparse
     import scipy.sparse.linalg
-    target = deviatoric_part(sample(truth, fit_points))[:, [0, 1, 3, 4, 5]] / field.stress_scale
+    target = deviatoric_part(stress)[:, [0, 1, 3, 4, 5]] / field.stress_scale
     basis = trilinear_basis(fit_points, field.bbox_min, field.bbox_max, field.shape).tocsr()
     normal = (basis.T @ basis).tocsc()
     diagonal = normal.diagonal()
@@ -131,9 +137,8 @@ def fitted_nodes(field: TrainableField, truth: StressField, fit_points: np.ndarr
 def _grid_error(field, nodes, truth, points):
     """The deviatoric error of a grid like ``field`` holding ``nodes`` (its five stored components, x fastest)."""
     from .fields import DeviatoricGrid
-    nx, ny, nz = field.shape
     copy = DeviatoricGrid(field.config, field.bbox_min, field.bbox_max, field.stress_scale)
-    copy.assign({"grid": mi.TensorXf(np.asarray(nodes).reshape(nz, ny, nx, 5).astype(np.float32))})
+    copy.set_nodes(nodes)
     return stress_errors(copy, truth, points).deviatoric
 
 

@@ -68,26 +68,23 @@ def starting_nodes(field: TrainableField, start: StressField, scene: mi.Scene, s
         raise ValueError(f"start {name} holds NaN or infinite stress inside the specimen")
     if not np.abs(values).max() > 0:
         raise ValueError(f"start {name} holds no stress inside the specimen: start from zero instead (drop start)")
-    return metrics.fitted_nodes(field, start, points)
+    return metrics.nodes_fitting(field, values, points)
 
 
 def _box(low, high) -> str:
     return "[" + ", ".join(f"{v:.3g}" for v in low) + "] .. [" + ", ".join(f"{v:.3g}" for v in high) + "] mm"
 
 
-def best_scale(field: TrainableField, nodes: np.ndarray, loss, spread: float) -> tuple[float, np.ndarray,
-                                                                                      np.ndarray]:
-    """``(factor, factors, losses)``: the factor within ``1 +- spread`` (steps of :data:`SCALE_STEP`) whose
-    ``factor * nodes`` in ``field`` score the lowest ``loss``, and every factor tried with its loss. The loss is
-    periodic in the retardance, so the factors are scanned, not descended."""
+def best_scale(field: TrainableField, nodes: np.ndarray, loss, spread: float) -> float:
+    """The factor within ``1 +- spread`` (steps of :data:`SCALE_STEP`) whose ``factor * nodes`` in ``field`` score
+    the lowest ``loss``. The loss is periodic in the retardance, so the factors are scanned, not descended."""
     count = int(round(spread / SCALE_STEP))
     factors = 1.0 + SCALE_STEP * np.arange(-count, count + 1)
     losses = []
     for factor in factors:
         field.set_nodes(factor * nodes)
         losses.append(loss(field))
-    losses = np.array(losses)
-    return float(factors[np.argmin(losses)]), factors, losses
+    return float(factors[np.argmin(losses)])
 
 
 def start_line(began_at: dict, spread: float) -> str:
