@@ -130,6 +130,8 @@ def test_a_start_is_refused_for_networks_and_beside_a_warm_start(tiny_dataset, t
         optimize(_scene(), tiny_dataset, progress=False, start=start, kind="mlp")
     with pytest.raises(ValueError, match="give one"):
         optimize(_scene(), tiny_dataset, progress=False, start=start, warm_start=0.2)
+    with pytest.raises(ValueError, match=r"'start_scale_range' is a share of the start's load in \[0, 1\)"):
+        optimize(_scene(), tiny_dataset, progress=False, start=start, start_scale_range=1.5)
 
 
 def test_cli_starts_from_a_field_and_says_so(tiny_dataset, tmp_path, capsys):
