@@ -13,7 +13,9 @@ The API, each with its own ``help()``:
 - ``optimize(scene, dataset, **options)`` -> ``Reconstruction``; ``options`` are ``OptimizeConfig``'s,
   flat (``iterations=300``) or as its groups ``Schedule``, ``Optimiser``, ``ForwardModel``, ``FieldConfig``,
   ``Regulariser`` (``REGULARISED``, the default, or ``NO_REGULARISER``) and ``Reporting``; ``FAST_OPTIONS``
-  are ``mi-nest reconstruct --fast``'s.
+  are ``mi-nest reconstruct --fast``'s;
+- ``separate(result_or_field, scene)`` -> ``Separation``: the full stress tensor, the mean stress found by
+  equilibrium from a deviatoric field (docs/separation.md).
 """
 from __future__ import annotations
 
@@ -60,8 +62,9 @@ from .dataset import Dataset, DatasetError, SimulationSettings, simulate  # noqa
 from .reconstruct import (FAST_OPTIONS, NO_REGULARISER, REGULARISED, DivergenceError, FieldConfig,  # noqa: E402
                           ForwardModel, OptimizeConfig, Optimiser, Reconstruction, Regulariser, Reporting, Schedule,
                           optimize)
+from .separation import Separation, separate  # noqa: E402
 
 __all__ = ["render", "load_scene", "scene_path", "RenderResult", "SceneError", "Dataset", "DatasetError",
            "SimulationSettings", "simulate", "optimize", "OptimizeConfig", "Schedule", "Optimiser", "ForwardModel",
            "FieldConfig", "Regulariser", "Reporting", "REGULARISED", "NO_REGULARISER", "FAST_OPTIONS",
-           "Reconstruction", "DivergenceError", "DEFAULT_VARIANT", "__version__"]
+           "Reconstruction", "DivergenceError", "separate", "Separation", "DEFAULT_VARIANT", "__version__"]

@@ -224,6 +224,22 @@ def _parser():
     principal.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                            metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
 
+    separate = commands.add_parser(
+        "separate", help="the full stress tensor: the mean stress a deviatoric field implies by equilibrium and its "
+                         "free surfaces (full.npz, separation.json, separation.png)")
+    separate.add_argument("source", help="a reconstruction directory, or a scene XML file or shipped name (its own "
+                                         "field's deviator)")
+    separate.add_argument("-o", "--output", required=True, help="output directory")
+    separate.add_argument("--loaded", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1",
+                          help="a region (mm) where the part is loaded, besides the scene's own contacts and "
+                               "pressures: no traction condition there (repeatable)")
+    separate.add_argument("--no-scene-loads", action="store_true",
+                          help="take no loaded regions from the scene's stress model (only --loaded ones)")
+    separate.add_argument("--resolution", type=int, help="nodes along the part's longest side (default: a "
+                                                         "reconstruction grid's own, else 64)")
+    separate.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
+                          metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
+
     view = commands.add_parser("view", help="an interactive viewer in the browser: drag to turn the part; the "
                                             "slice, polariscope, load and wavelength on sliders (Ctrl-C stops it)")
     view.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
@@ -595,6 +611,67 @@ def _principal(args):
     print(f"wrote {path.resolve()}")
 
 
+def _separate(args):
+    import json
+
+    from .inside import open_source
+    from .io.atomic import atomic_path
+    from .io.lock import locked_directory
+    from .separation import parse_region, separate
+    from .separation.regions import suspect_line
+    from .separation.report import against_truth, write_figure
+    regions = [parse_region(text) for text in args.loaded]          # before the scene loads
+    source = open_source(args.source, dict(args.defines))
+    output = Path(args.output)
+    _refuse_overwriting_source({"-o": output / "full.npz"}, args.source, source)
+    truth = source.truth() if source.is_reconstruction else source
+    truth_field = None if truth is None else (truth.field or _scene_own_field(truth.scene))
+    with locked_directory(output):
+        result = separate(source.field, source.scene, regions, args.resolution,
+                          model_loads=not args.no_scene_loads)
+        summary = {"source": str(Path(args.source).resolve()) if Path(args.source).exists() else args.source,
+                   "defines": dict(args.defines), **result.summary}
+        if truth_field is not None:
+            summary["against_truth"] = against_truth(result, truth_field)
+        path = result.save(output)
+        with atomic_path(output / "separation.json", ".json") as tmp:
+            Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
+        figure = write_figure(output / "separation.png", result, truth_field,
+                              f"{Path(args.source).name}: mean stress by equilibrium")
+    loaded = summary["loaded"]
+    print(f"{Path(args.source).name}: mean stress separated on a {'x'.join(map(str, summary['grid']))} grid in "
+          f"{summary['seconds']:.1f} s; {100 * loaded['free_share']:.1f}% of the surface free "
+          f"({100 * loaded['by_model']:.1f}% loaded by the scene's model, {100 * loaded['by_regions']:.1f}% by "
+          f"--loaded); traction left on the free surface {summary['residual']['free_surface_per_scale']:.3g} "
+          "stress scales (RMS)")
+    if not loaded["by_model"] and not regions:
+        warnings.warn("no loaded region: every surface is taken as free (give --loaded where the part is held or "
+                      "pushed)")
+    for patch in summary["suspect_loads"][:SUSPECTS_SHOWN]:
+        warnings.warn(suspect_line(patch))
+    if len(summary["suspect_loads"]) > SUSPECTS_SHOWN:
+        warnings.warn(f"{len(summary['suspect_loads']) - SUSPECTS_SHOWN} smaller such patches are listed in "
+                      f"{output / 'separation.json'} (suspect_loads)")
+    if "against_truth" in summary:
+        for kind, label in (("all", "inside the part"), ("away_from_loads", "away from the loaded regions")):
+            if kind in summary["against_truth"]:
+                e = summary["against_truth"][kind]
+                print(f"against the truth, {label}: full tensor {100 * e['full']:.2f}%, deviator "
+                      f"{100 * e['deviatoric']:.2f}%, mean stress {100 * e['mean_per_scale']:.2f}% of the stress "
+                      "scale")
+    for written in (path, output / "separation.json", figure):
+        print(f"wrote {written.resolve()}")
+
+
+# The largest patches of free surface left carrying traction that a separation prints (the rest: separation.json).
+SUSPECTS_SHOWN = 3
+
+
+def _scene_own_field(scene):
+    from .dataset.truth import scene_field
+    return scene_field(scene)
+
+
 def _view(args):
     from .arguments import whole_number
     from .inside.viewer import PORTS, require_address, run_viewer
@@ -618,7 +695,7 @@ COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "b
             "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
             "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
             "turntable": _turntable, "compare": _compare, "principal": _principal,
-            "view": _view}
+            "separate": _separate, "view": _view}
 # The options naming a file that a command writes, with the suffix of an example name: one naming a directory is
 # refused before any work (a file cannot replace it).
 FILE_OUTPUTS = {"render": (("-o", "output", ".exr"), ("--png", "png", ".png")),

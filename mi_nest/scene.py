@@ -204,6 +204,12 @@ def is_specimen(shape: mi.Shape) -> bool:
     return isinstance(shape.interior_medium(), stress.StressMedium)
 
 
+def specimen_file(shape: mi.Shape) -> str | None:
+    """The stress file a ``specimen`` shape was made from (None for other shapes)."""
+    from .plugins import specimen
+    return shape.filename if isinstance(shape, specimen.Specimen) else None
+
+
 def specimen_shapes(scene: mi.Scene) -> list[mi.Shape]:
     """The scene's specimens (shapes with a ``stress`` medium inside); a scene without one is refused."""
     shapes = [s for s in scene.shapes() if is_specimen(s)]

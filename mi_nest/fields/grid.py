@@ -27,6 +27,11 @@ class GridField(StressField):
         self._scale = (nodes - 1) / (nodes * (self.bbox_max - self.bbox_min))
         self._offset = 0.5 / nodes - self.bbox_min * self._scale
 
+    @property
+    def node_counts(self) -> tuple[int, int, int]:
+        """``(nx, ny, nz)``: the nodes along each axis."""
+        return self.shape[2], self.shape[1], self.shape[0]
+
     def eval(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         uvw = dr.fma(mi.Point3f(p), self._scale, self._offset)
         return tuple(self.texture.eval(uvw))

@@ -202,6 +202,11 @@ class DeviatoricGrid(TrainableField):
     def assign(self, values: dict) -> None:
         self.texture.set_tensor(values["grid"])
 
+    @property
+    def node_counts(self) -> tuple[int, int, int]:
+        """``(nx, ny, nz)``: the nodes along each axis (as a stress grid field names them)."""
+        return self.shape
+
     def nodes(self) -> np.ndarray:
         """``(nx * ny * nz, 5)``: the stored components node by node, x fastest (as ``metrics.fitted_nodes``)."""
         return np.array(self.texture.tensor()).reshape(-1, 5)
