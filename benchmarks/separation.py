@@ -10,7 +10,7 @@
 
     python benchmarks/separation.py [--quick]
 
-Writes ``experiments/results/separation.csv``; prints the table, the CPU and the seconds.
+Writes ``experiments/results/separation.csv`` (``--quick``: ``experiments/out/separation_quick.csv``); prints the table, the CPU and the seconds.
 """
 from __future__ import annotations
 
@@ -137,7 +137,9 @@ def main():
     print(rows[-1])
     columns = sorted({key for row in rows for key in row}, key=lambda k: list(rows[0]).index(k)
                      if k in rows[0] else 100)
-    output = HERE / "experiments" / "results" / ("separation_quick.csv" if args.quick else "separation.csv")
+    output = HERE / "experiments" / ("out" if args.quick else "results") / \
+        ("separation_quick.csv" if args.quick else "separation.csv")
+    output.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile("w", dir=output.parent, delete=False, suffix=".csv") as handle:
         writer = csv.DictWriter(handle, fieldnames=columns + ["cpu"])
         writer.writeheader()

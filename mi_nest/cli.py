@@ -369,7 +369,7 @@ def _export(args):
     from .inside import open_source
     source = open_source(args.field, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output}, args.field, source)
-    if source.is_reconstruction:
+    if source.deviatoric:
         print(f"{args.field}: the reconstruction's deviatoric stress, written as deviatoric_stress and s_1..s_3 "
               "(photoelasticity does not see the mean stress; the principal directions and von Mises are the "
               "full stress's)")
@@ -378,7 +378,7 @@ def _export(args):
         print(f"{args.field}: its trust map "
               + (f"written beside it as {names}" if Path(args.output).suffix.lower() == ".vtu"
                  else "is not written: 3D-TSV holds stress only (export to .vtu to have it)"))
-    for path in export_scene(source.scene, args.output, args.resolution, source.field, source.is_reconstruction,
+    for path in export_scene(source.scene, args.output, args.resolution, source.field, source.deviatoric,
                              None if source.trust is None else source.trust.point_data):
         print(f"wrote {path.resolve()}")
 
@@ -596,13 +596,16 @@ def _principal(args):
     path = write_principal_figure(args.output, shown, truth, f"{Path(args.source).name}: {kind} at "
                                                              f"{plane.describe()}", uncertainty)
     prefix = "deviatoric s" if shown.deviatoric else "sigma"
+    labels = {"sigma_1": f"{prefix}_1", "sigma_3": f"{prefix}_3", "von_mises": "von Mises", "mean": "mean stress"}
     print(f"{Path(args.source).name} at {plane.describe()}: " + ", ".join(
-        f"{label} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
-        for name, label in (("sigma_1", f"{prefix}_1"), ("sigma_3", f"{prefix}_3"), ("von_mises", "von Mises"))))
+        f"{labels[name]} {np.nanmin(shown.quantity(name)):.3g} to {np.nanmax(shown.quantity(name)):.3g} MPa"
+        for name in labels if name in shown.quantities))
     if truth is not None:
-        error = shown.minus(truth)["von_mises"]
-        print(f"von Mises against the truth: RMS error {np.sqrt(np.nanmean(error ** 2)):.3g} MPa "
-              f"(truth's RMS {np.sqrt(np.nanmean(truth.von_mises ** 2)):.3g} MPa)")
+        errors = shown.minus(truth)
+        for name in ("von_mises", "mean"):
+            if name in errors:
+                print(f"{labels[name]} against the truth: RMS error {np.sqrt(np.nanmean(errors[name] ** 2)):.3g} MPa "
+                      f"(truth's RMS {np.sqrt(np.nanmean(truth.quantity(name) ** 2)):.3g} MPa)")
     if uncertainty is not None:
         print(f"where to trust it (trust.npz): uncertainty {np.nanmin(uncertainty):.3g} to "
               f"{np.nanmax(uncertainty):.3g} stress scales per box length on this plane" + ("" if truth is None else
@@ -624,7 +627,7 @@ def _separate(args):
     source = open_source(args.source, dict(args.defines))
     output = Path(args.output)
     _refuse_overwriting_source({"-o": output / "full.npz"}, args.source, source)
-    truth = source.truth() if source.is_reconstruction else source
+    truth = source.truth() if source.is_reconstruction or source.full else source
     truth_field = None if truth is None else (truth.field or _scene_own_field(truth.scene))
     with locked_directory(output):
         result = separate(source.field, source.scene, regions, args.resolution,

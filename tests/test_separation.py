@@ -6,6 +6,7 @@ Boussinesq's half-space), whose mean stress is known: the separation sees only t
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -160,6 +161,13 @@ def test_cli_writes_the_full_tensor_and_says_how_it_compares(tmp_path, capsys):
     assert (out / "separation.png").stat().st_size > 10_000
     assert main(["export", str(out / "full.npz"), "-o", str(tmp_path / "full.vtu")]) == 0
     capsys.readouterr()
+    # The separation's directory is a source as a scene is: its principal stresses are full, with the mean stress.
+    assert main(["principal", str(out), "--plane", "z=0", "-o", str(tmp_path / "p.png"), "--res", "48"]) == 0
+    printed = capsys.readouterr().out
+    assert "sigma_1" in printed and "deviatoric" not in printed
+    mean_error, truth_rms = map(float, re.search(r"mean stress against the truth: RMS error (\S+) MPa \(truth's RMS "
+                                                 r"(\S+) MPa\)", printed).groups())
+    assert mean_error < 0.1 * truth_rms           # on this plane at 24 nodes, bore included (accuracy: above)
     assert main(["separate", "lame_cylinder", "-o", str(tmp_path / "bad"), "--loaded", "box:1,2"]) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0
     assert main(["separate", "lame_cylinder", "-o", str(tmp_path / "far"), "--loaded",

@@ -26,6 +26,8 @@ from .slicing import Plane, SliceError, SliceImage, slice_image
 from .source import ViewSource
 
 QUANTITIES = ("sigma_1", "sigma_2", "sigma_3", "von_mises")
+# A full tensor's figure also shows its mean stress (a deviator's is zero).
+MEAN = "mean"
 # Direction glyphs drawn along the image's longer side.
 GLYPHS_ACROSS = 18
 
@@ -43,9 +45,16 @@ class PrincipalSlice:
     inside: np.ndarray
     deviatoric: bool
 
+    @property
+    def quantities(self) -> tuple[str, ...]:
+        """What the slice's figure shows: the principal stresses and von Mises, and a full tensor's mean stress."""
+        return QUANTITIES if self.deviatoric else QUANTITIES + (MEAN,)
+
     def quantity(self, name: str) -> np.ndarray:
         if name == "von_mises":
             return self.von_mises
+        if name == MEAN:
+            return self.stress[..., :3].mean(axis=-1)
         return self.values[..., QUANTITIES.index(name)]
 
     def in_plane(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +64,7 @@ class PrincipalSlice:
 
     def minus(self, truth: PrincipalSlice) -> dict[str, np.ndarray]:
         """Each quantity of this slice minus ``truth``'s."""
-        return {name: self.quantity(name) - truth.quantity(name) for name in QUANTITIES}
+        return {name: self.quantity(name) - truth.quantity(name) for name in self.quantities}
 
 
 def principal_slice(scene: mi.Scene, plane: Plane, resolution: int = 128, field: object | None = None,
@@ -89,12 +98,13 @@ def principal_slice(scene: mi.Scene, plane: Plane, resolution: int = 128, field:
 
 def source_slices(source: ViewSource, plane: Plane, resolution: int = 128
                   ) -> tuple[PrincipalSlice, PrincipalSlice | None]:
-    """The slice of ``source`` and, for a reconstruction of simulated data, of its truth (both deviatoric)."""
-    shown = principal_slice(source.scene, plane, resolution, source.field, deviatoric=source.is_reconstruction)
+    """The slice of ``source`` and, for a reconstruction of simulated data or a separation, of its truth (both
+    deviatoric for a reconstruction, full for a separation)."""
+    shown = principal_slice(source.scene, plane, resolution, source.field, deviatoric=source.deviatoric)
     truth = source.truth()
     if truth is None:
         return shown, None
-    return shown, principal_slice(truth.scene, plane, resolution, None, deviatoric=True)
+    return shown, principal_slice(truth.scene, plane, resolution, None, deviatoric=shown.deviatoric)
 
 
 def uncertainty_on(shown: PrincipalSlice, trust: TrustMap) -> np.ndarray:
@@ -119,22 +129,25 @@ def uncertainty_ranking(uncertainty: np.ndarray, error: np.ndarray) -> float:
 
 def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: PrincipalSlice | None,
                            title: str, uncertainty: np.ndarray | None = None) -> Path:
-    """sigma_1, sigma_2, sigma_3 and von Mises with colour bars in MPa, direction glyphs on the principal
-    stresses (their in-plane part: a short glyph points out of the plane); with ``truth``, its row and the
-    error row below. A reconstruction's ``uncertainty`` on the plane (:func:`uncertainty_on`) adds a column:
+    """sigma_1, sigma_2, sigma_3 and von Mises (and a full tensor's mean stress) with colour bars in MPa, direction
+    glyphs on the principal stresses (their in-plane part: a short glyph points out of the plane); with ``truth``,
+    its row and the error row below. A reconstruction's ``uncertainty`` on the plane (:func:`uncertainty_on`) adds a column:
     where to trust it, above the actual deviatoric error when the truth is known."""
     plt = pyplot()
-    rows = [("reconstruction" if shown.deviatoric and truth is not None else "", shown)]
+    compared = ("reconstruction" if shown.deviatoric else "separated") if truth is not None else ""
+    rows = [(compared, shown)]
     if truth is not None:
         rows.append(("truth", truth))
     row_count = len(rows) + (truth is not None)        # with a truth, its row and the error row
-    columns = len(QUANTITIES) + (uncertainty is not None)
+    quantities = shown.quantities
+    columns = len(quantities) + (uncertainty is not None)
     figure, axes = plt.subplots(row_count, columns, figsize=(4.25 * columns, 4.2 * row_count), squeeze=False,
                                 constrained_layout=True)
     prefix = "s" if shown.deviatoric else "sigma"
-    names = {"sigma_1": f"{prefix}_1", "sigma_2": f"{prefix}_2", "sigma_3": f"{prefix}_3", "von_mises": "von Mises"}
+    names = {"sigma_1": f"{prefix}_1", "sigma_2": f"{prefix}_2", "sigma_3": f"{prefix}_3", "von_mises": "von Mises",
+             MEAN: "mean stress p"}
     # One colour scale per quantity across the rows, so that truth and reconstruction compare by eye.
-    limits = {name: _limits([s.quantity(name) for _, s in rows], name) for name in QUANTITIES}
+    limits = {name: _limits([s.quantity(name) for _, s in rows], name) for name in quantities}
     # A principal stress that is zero everywhere (sigma_2 in plane stress) gets the others' scale, not its noise's.
     largest = max(limits[name][1] for name in QUANTITIES[:3])
     for name in QUANTITIES[:3]:
@@ -142,7 +155,7 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
         limits[name] = (-bound, bound, limits[name][2])
     extent = shown.image.extent()
     for row, (label, data) in enumerate(rows):
-        for column, name in enumerate(QUANTITIES):
+        for column, name in enumerate(quantities):
             axis = axes[row, column]
             low, high, cmap = limits[name]
             values = data.quantity(name)
@@ -156,13 +169,13 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
             axis.set_ylabel("image up (mm)")
     if truth is not None:
         errors = shown.minus(truth)
-        for column, name in enumerate(QUANTITIES):
+        for column, name in enumerate(quantities):
             axis = axes[-1, column]
             bound = _symmetric_bound(errors[name])
             drawn = axis.imshow(np.ma.masked_invalid(errors[name]), cmap="RdBu_r", vmin=-bound, vmax=bound,
                                 extent=extent, interpolation="nearest")
             _colour_bar(figure, axis, drawn, errors[name], -bound, bound, f"error of {names[name]} (MPa)")
-            axis.set_title(f"reconstruction - truth: {names[name]}")
+            axis.set_title(f"{compared} - truth: {names[name]}")
             axis.set_xlabel("image right (mm)")
             axis.set_ylabel("image up (mm)")
     if uncertainty is not None:

@@ -15,18 +15,21 @@ from ..reconstruct.trust import TRUST_FILE, TrustMap
 from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
 
 RESULT_FILES = ("reconstruction.json", "field.npz")
+SEPARATION_FILES = ("separation.json", "full.npz")
 
 
 @dataclass
 class ViewSource:
     """A scene and the field to show in its specimens: ``field`` None is the scene's own stress. Views turn the
     specimen about ``center`` from the camera's pose as loaded, ``reference``. A reconstruction's ``trust`` is its
-    trust map (``trust.npz``; None where the run wrote none)."""
+    trust map (``trust.npz``; None where the run wrote none). ``full``: the field is a separation's full stress
+    (``mi-nest separate``), of a reconstruction's deviator or a scene's."""
     scene: mi.Scene
     field: StressField | None
     name: str
     reconstruction: Reconstruction | None = None
     trust: TrustMap | None = None
+    full: bool = False
     reference: np.ndarray = dataclass_field(init=False, repr=False)
     center: np.ndarray = dataclass_field(init=False, repr=False)
 
@@ -39,11 +42,17 @@ class ViewSource:
     def is_reconstruction(self) -> bool:
         return self.reconstruction is not None
 
+    @property
+    def deviatoric(self) -> bool:
+        """Whether the field is trace-free: a reconstruction's, unless its mean stress was separated."""
+        return self.is_reconstruction and not self.full
+
     def truth(self) -> ViewSource | None:
         """The scene a reconstruction's simulated dataset was rendered from, with its own stress: the truth the
-        reconstruction is compared with (None for a scene itself, or for a reconstruction of captured data)."""
+        reconstruction is compared with (None for a scene itself, or for a reconstruction of captured data). A
+        separation of a scene's own field has that scene for its truth."""
         if self.reconstruction is None:
-            return None
+            return ViewSource(self.scene, None, f"truth of {self.name}") if self.full else None
         dataset_source = self.reconstruction.source.get("dataset_source", {})
         if recorded_scene(dataset_source) is None:
             return None
@@ -54,9 +63,12 @@ class ViewSource:
 
 
 def open_source(text: str | Path, defines: dict | None = None) -> ViewSource:
-    """A scene (XML file or shipped name, with ``defines``) or a result directory of ``mi-nest reconstruct``
-    (its field in the scene it was reconstructed with, ``defines`` added to that scene's)."""
+    """A scene (XML file or shipped name, with ``defines``), a result directory of ``mi-nest reconstruct``
+    (its field in the scene it was reconstructed with, ``defines`` added to that scene's) or of ``mi-nest
+    separate`` (the full stress in the scene of what was separated)."""
     path = Path(text)
+    if path.is_dir() and all((path / name).exists() for name in SEPARATION_FILES):
+        return _separation(path, defines)
     if path.is_dir() and any((path / name).exists() for name in RESULT_FILES):
         reconstruction = Reconstruction.load(path)
         scene_file, scene_defines = _reconstruction_scene(path, reconstruction.source)
@@ -66,6 +78,21 @@ def open_source(text: str | Path, defines: dict | None = None) -> ViewSource:
         raise ValueError(f"{path} is a directory but not a reconstruction (no {' or '.join(RESULT_FILES)}): "
                          "give a scene or the output directory of mi-nest reconstruct")
     return ViewSource(load_scene(path, **dict(defines or {})), None, str(path))
+
+
+def _separation(path: Path, defines: dict | None) -> ViewSource:
+    import json
+
+    from ..fields.grid import GridField
+    from ..io.grid import load_stress_grid
+    try:
+        record = json.loads((path / "separation.json").read_text())
+        separated = record["source"]
+    except (ValueError, KeyError, OSError) as error:
+        raise ValueError(f"{path}/separation.json cannot be read ({error}): run mi-nest separate again") from None
+    base = open_source(separated, {**record.get("defines", {}), **dict(defines or {})})
+    return ViewSource(base.scene, GridField(load_stress_grid(path / "full.npz")), str(path), base.reconstruction,
+                      base.trust, full=True)
 
 
 def _reconstruction_scene(path: Path, source: dict) -> tuple[str, dict]:
