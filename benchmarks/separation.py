@@ -10,7 +10,8 @@
 
     python benchmarks/separation.py [--quick]
 
-Writes ``experiments/results/separation.csv`` (``--quick``: ``experiments/out/separation_quick.csv``); prints the table, the CPU and the seconds.
+Writes ``experiments/results/separation.csv`` (``--quick``: ``experiments/out/separation_quick.csv``); prints
+the table, the CPU and the seconds.
 """
 from __future__ import annotations
 

@@ -230,9 +230,10 @@ def _parser():
     separate.add_argument("source", help="a reconstruction directory, or a scene XML file or shipped name (its own "
                                          "field's deviator)")
     separate.add_argument("-o", "--output", required=True, help="output directory")
-    separate.add_argument("--loaded", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1",
-                          help="a region (mm) where the part is loaded, besides the scene's own contacts and "
-                               "pressures: no traction condition there (repeatable)")
+    separate.add_argument("--loaded", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1|mesh:PATH",
+                          help="a region where the part is loaded (a box in mm, or the inside of a closed surface "
+                               "mesh), besides the scene's own contacts and pressures: no traction condition there "
+                               "(repeatable)")
     separate.add_argument("--no-scene-loads", action="store_true",
                           help="take no loaded regions from the scene's stress model (only --loaded ones)")
     separate.add_argument("--resolution", type=int, help="nodes along the part's longest side (default: a "
@@ -615,11 +616,13 @@ def _principal(args):
 
 
 def _separate(args):
+    import contextlib
     import json
 
     from .inside import open_source
     from .io.atomic import atomic_path
     from .io.lock import locked_directory
+    from .reconstruct.checkpoints import record_separation
     from .separation import parse_region, separate
     from .separation.regions import suspect_line
     from .separation.report import against_truth, write_figure
@@ -629,7 +632,9 @@ def _separate(args):
     _refuse_overwriting_source({"-o": output / "full.npz"}, args.source, source)
     truth = source.truth() if source.is_reconstruction or source.full else source
     truth_field = None if truth is None else (truth.field or _scene_own_field(truth.scene))
-    with locked_directory(output):
+    # A reconstruction records its separations: no run may rewrite it meanwhile.
+    held = locked_directory(args.source) if source.deviatoric else contextlib.nullcontext()
+    with locked_directory(output), held:
         result = separate(source.field, source.scene, regions, args.resolution,
                           model_loads=not args.no_scene_loads)
         summary = {"source": str(Path(args.source).resolve()) if Path(args.source).exists() else args.source,
@@ -641,6 +646,10 @@ def _separate(args):
             Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
         figure = write_figure(output / "separation.png", result, truth_field,
                               f"{Path(args.source).name}: mean stress by equilibrium")
+        if source.deviatoric:
+            record_separation(args.source, {"output": str(output.resolve()), "loaded": summary["loaded"],
+                                            "residual": summary["residual"], "grid": summary["grid"],
+                                            "suspect_loads": len(summary["suspect_loads"])})
     loaded = summary["loaded"]
     print(f"{Path(args.source).name}: mean stress separated on a {'x'.join(map(str, summary['grid']))} grid in "
           f"{summary['seconds']:.1f} s; {100 * loaded['free_share']:.1f}% of the surface free "

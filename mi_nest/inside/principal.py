@@ -131,8 +131,8 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
                            title: str, uncertainty: np.ndarray | None = None) -> Path:
     """sigma_1, sigma_2, sigma_3 and von Mises (and a full tensor's mean stress) with colour bars in MPa, direction
     glyphs on the principal stresses (their in-plane part: a short glyph points out of the plane); with ``truth``,
-    its row and the error row below. A reconstruction's ``uncertainty`` on the plane (:func:`uncertainty_on`) adds a column:
-    where to trust it, above the actual deviatoric error when the truth is known."""
+    its row and the error row below. A reconstruction's ``uncertainty`` on the plane (:func:`uncertainty_on`) adds a
+    column: where to trust it, above the actual deviatoric error when the truth is known."""
     plt = pyplot()
     compared = ("reconstruction" if shown.deviatoric else "separated") if truth is not None else ""
     rows = [(compared, shown)]

@@ -208,6 +208,19 @@ class Reconstruction:
         return render(scene, field=self.field, **options)
 
 
+def record_separation(directory: str | Path, entry: dict) -> None:
+    """Add ``entry`` (a separation of this reconstruction: where it was written and how) to
+    ``directory/reconstruction.json``'s ``separations``, replacing one written to the same ``output``. A run that
+    resumes writes the record anew, without them: its field is no longer the one separated."""
+    path = Path(directory) / "reconstruction.json"
+    with _damaged_file(path):
+        record = json.loads(path.read_text())
+    record["separations"] = [kept for kept in record.get("separations", []) if kept.get("output") != entry["output"]]
+    record["separations"].append(entry)
+    with atomic_path(path, ".json") as tmp:
+        Path(tmp).write_text(json.dumps(record, indent=1))
+
+
 @contextmanager
 def _damaged_file(path):
     """A saved reconstruction's ``path`` that cannot be read (cut short, edited, another program's) as a

@@ -144,6 +144,9 @@ class Regulariser:
     # Grids: weight of the mean squared equilibrium residual |div(s) + grad(p)|^2 inside the specimen, the mean
     # stress p a free unknown beside the deviator s (reconstruct/equilibrium.py). 0: no equilibrium prior.
     equilibrium: float = 0.0
+    # Weight of the mean squared shear traction of the deviator on the free surface (stress scales), zero for a
+    # body in equilibrium whatever its mean stress (reconstruct/free_surface.py). 0: no free-surface prior.
+    free_surface: float = 0.0
     # A grid's RMS (stress scales) up to which the weights hold as given; above it the smoothness falls as the
     # RMS squared and the edge grows with it, so the penalty keeps its share of the loss as the load grows
     # (None: the weights hold at any scale).
@@ -161,8 +164,9 @@ class Regulariser:
             _require_positive("smoothness_edge", self.smoothness_edge,
                               "a positive gradient (stress scales per box width)")
         _require_share("average_last", self.average_last)
-        if not (math.isfinite(self.equilibrium) and self.equilibrium >= 0):
-            raise ValueError(f"equilibrium must be a non-negative weight, got {self.equilibrium}")
+        for name in ("equilibrium", "free_surface"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a non-negative weight, got {getattr(self, name)}")
 
     def acts_on_gradients(self) -> bool:
         return bool(self.smoothness) or self.smoothness_edge is not None
@@ -178,6 +182,11 @@ class Regulariser:
         """The equilibrium weight for a field of RMS ``field_rms`` (used with ``relative_to``): the residual grows
         with the field as its gradient does, so the weight follows the smoothness's."""
         return self.equilibrium / self._growth(field_rms) ** 2
+
+    def free_surface_at(self, field_rms: float | None = None) -> float:
+        """The free-surface weight for a field of RMS ``field_rms`` (used with ``relative_to``): the shear
+        traction grows with the field, so the weight falls as its square."""
+        return self.free_surface / self._growth(field_rms) ** 2
 
     def edge_at(self, field_rms: float | None = None) -> float | None:
         """The Charbonnier edge for a field of RMS ``field_rms`` (used with ``relative_to``)."""

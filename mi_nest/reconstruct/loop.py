@@ -26,6 +26,7 @@ from ..fields.base import sample
 from ..render import require_memory
 from ..scene import scene_origin, specimen_shapes
 from . import equilibrium, metrics
+from .free_surface import FreeSurfacePrior
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import OptimizeConfig
 from .evaluation import SampledViewLoss
@@ -98,6 +99,7 @@ class Run:
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid
+        self._free = None               # the free-surface prior's points
         self.began_at = {}              # where a start began (start_from): recorded with the first iteration
 
     def _stages(self):
@@ -296,7 +298,8 @@ class Run:
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
             # The scale is read only where it changes a weight: a grid's smoothness, relative to the field.
             relative = regulariser.relative_to is not None and self.field.kind == "grid" \
-                and (regulariser.acts_on_gradients() or bool(regulariser.equilibrium))
+                and (regulariser.acts_on_gradients() or bool(regulariser.equilibrium)
+                     or bool(regulariser.free_surface))
             field_rms = self._field_rms() if relative else None
             penalty = self.field.smoothness_penalty(regulariser.smoothness_at(self.smoothness_decayed(), field_rms),
                                                     regulariser.edge_at(field_rms) if self.in_finest_stage() else None)
@@ -313,6 +316,13 @@ class Run:
             state_grad = dr.grad(leaf)
         integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed, field=self.field)
         value = float(total[0])
+        if regulariser.free_surface:
+            # Its own backward, after the rays': taken in one backward with the rays' loss, the texture lookups'
+            # gradients left the rays' out of the step (the field stayed at zero).
+            with dr.resume_grad():
+                surface = self._free_surface().penalty(self.field, regulariser.free_surface_at(field_rms))
+                dr.backward(surface)
+            value += float(surface[0])
         self._check_divergence(value)
         self.optimizer.step()
         # The field follows the optimiser's new values at once: checkpoints and the result hold this step.
@@ -320,6 +330,13 @@ class Run:
         if self.averaging():
             self._add_to_average()
         return value
+
+    def _free_surface(self) -> FreeSurfacePrior:
+        """The free-surface prior's points, found once, about a 64th of the box apart."""
+        if self._free is None:
+            self._free = FreeSurfacePrior(self.scene, float(np.max(self.field.bbox_max - self.field.bbox_min)) / 64,
+                                          self.config.optimiser.seed)
+        return self._free
 
     def _balance_mean(self) -> None:
         """Every :data:`BALANCE_EVERY` iterations and on a new grid, the mean stress that best balances the

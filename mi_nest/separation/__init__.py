@@ -18,13 +18,15 @@ from .. import occupancy
 from ..fields import StressField
 from ..fields.base import sample
 from ..fields.grid import GridField
-from ..io.grid import StressGrid, save_stress_grid
+from ..io.atomic import atomic_path
+from ..io.grid import StressGrid
 from ..scene import specimen_bounds, specimen_media, specimen_shapes
-from .regions import Box, RegionError, fem_loaded, model_loaded, parse_region, suspect_loads
+from .regions import Box, MeshRegion, RegionError, fem_loaded, model_loaded, parse_region, suspect_loads
 from .solver import Lattice, smooth_extension, solve_mean_stress
 from .surface import SeparationError, specimen_surface
 
-__all__ = ["separate", "Separation", "SeparationError", "RegionError", "parse_region", "Box", "DEFAULT_RESOLUTION"]
+__all__ = ["separate", "Separation", "SeparationError", "RegionError", "parse_region", "Box", "MeshRegion",
+           "DEFAULT_RESOLUTION"]
 
 DEFAULT_RESOLUTION = 64
 # A free surface smaller than this share of the part's surface cannot fix the mean stress reliably.
@@ -54,14 +56,12 @@ class Separation:
         return sample(self.field, points)
 
     def save(self, directory: str | Path) -> Path:
-        """``directory/full.npz`` (a stress grid file, with ``mean_stress`` and ``inside`` beside it)."""
+        """``directory/full.npz``: a stress grid file (``stress``, ``bbox_min``, ``bbox_max``), with ``mean_stress``
+        and ``inside`` beside it."""
         path = Path(directory) / FULL_FILE
-        save_stress_grid(path, self.grid)
-        with np.load(path) as data:
-            arrays = {name: data[name] for name in data.files}
-        from ..io.atomic import atomic_path
         with atomic_path(path, ".npz") as tmp:
-            np.savez_compressed(tmp, **arrays, mean_stress=self.mean.astype(np.float32), inside=self.inside)
+            np.savez_compressed(tmp, stress=self.grid.stress, bbox_min=self.grid.bbox_min, bbox_max=self.grid.bbox_max,
+                                mean_stress=self.mean.astype(np.float32), inside=self.inside)
         return path
 
 
@@ -99,9 +99,10 @@ def _scene_model(scene: mi.Scene) -> StressField | None:
     return media[0].field if len({id(m.field) for m in media}) == 1 else None
 
 
-def _model_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarray, spacing: float) -> np.ndarray:
+def scene_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarray, spacing: float) -> np.ndarray:
     """The surface points the scene's model loads: near the loaded and fixed nodes of the FEM model behind its
-    specimens, or else where its stress model puts traction on the surface."""
+    specimens, or else where its stress model puts traction on the surface (``inside_nodes``: points inside the
+    part where its stress scale is taken)."""
     by_fem = fem_loaded(shapes, surface, spacing)
     if by_fem is not None:
         return by_fem
@@ -110,7 +111,7 @@ def _model_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarra
     return model_loaded(model, surface, scale, spacing) if scale > 0 else np.zeros(len(surface), dtype=bool)
 
 
-def _region_loads(regions: list[Box], surface, shapes: list) -> np.ndarray:
+def _region_loads(regions: list[Box | MeshRegion], surface, shapes: list) -> np.ndarray:
     """The surface points inside the given loaded regions; a region that touches none is refused."""
     loaded = np.zeros(len(surface), dtype=bool)
     for region in regions:
@@ -128,10 +129,10 @@ def separate(source, scene: mi.Scene, loaded: tuple = (), resolution: int | None
     """The full stress of ``source`` (a reconstruction, any stress field, its trace ignored, or None: the scene's
     own) in ``scene``'s specimens, its mean stress separated by equilibrium.
 
-    ``loaded``: regions (``Box`` or ``"box:X0,Y0,Z0,X1,Y1,Z1"``) where the part is loaded, besides those of the
-    scene's own stress model (its contacts, pressures and cut faces: where it puts traction on the surface;
-    ``model_loads=False`` leaves them out). ``resolution``: nodes along the part's longest side (default: a grid
-    field's own nodes, else :data:`DEFAULT_RESOLUTION`).
+    ``loaded``: regions (``Box``, ``MeshRegion``, ``"box:X0,Y0,Z0,X1,Y1,Z1"`` or ``"mesh:PATH"``) where the part
+    is loaded, besides those of the scene's own stress model (its contacts, pressures and cut faces: where it puts
+    traction on the surface; ``model_loads=False`` leaves them out). ``resolution``: nodes along the part's
+    longest side (default: a grid field's own nodes, else :data:`DEFAULT_RESOLUTION`).
     """
     start = time.perf_counter()
     field = _scene_model(scene) if source is None else getattr(source, "field", source)
@@ -157,7 +158,7 @@ def separate(source, scene: mi.Scene, loaded: tuple = (), resolution: int | None
     scale = _stress_scale(deviator[node_inside])
     if scale == 0:
         raise SeparationError("the field has no deviatoric stress inside the part: nothing to separate")
-    by_model = _model_loads(scene, shapes, surface, nodes[node_inside], spacing) if model_loads else \
+    by_model = scene_loads(scene, shapes, surface, nodes[node_inside], spacing) if model_loads else \
         np.zeros(len(surface), dtype=bool)
     by_region = _region_loads(regions, surface, shapes)
     free = surface.subset(~(by_model | by_region))

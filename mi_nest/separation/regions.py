@@ -2,14 +2,17 @@
 
 A free surface carries no traction (``sigma n = 0``); contacts, fixtures, pressure and cut faces do. The loaded
 regions come from the scene's own stress model (where it puts traction on the surface: its contacts, its
-pressure, the faces a half-space is cut at) and from regions the user gives (``box:X0,Y0,Z0,X1,Y1,Z1`` in mm).
+pressure, the faces a half-space is cut at) and from regions the user gives (``box:X0,Y0,Z0,X1,Y1,Z1`` in mm, or
+``mesh:PATH``, the inside of a closed surface mesh).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from .. import occupancy
 from ..fields import StressField
 from ..fields.base import sample
 from ..physics.tensors import stress_matrices
@@ -23,7 +26,7 @@ ABSOLUTE_SHARE = 0.01
 # A loaded region reaches this many grid spacings past the points where the traction was found.
 MARGIN_CELLS = 2.0
 
-REGION_FORMAT = "box:X0,Y0,Z0,X1,Y1,Z1 (mm)"
+REGION_FORMAT = "box:X0,Y0,Z0,X1,Y1,Z1 (mm) or mesh:PATH (a closed surface mesh)"
 
 
 class RegionError(ValueError):
@@ -44,9 +47,50 @@ class Box:
         return "box:" + ",".join(f"{v:g}" for v in (*self.low, *self.high))
 
 
-def parse_region(text: str) -> Box:
-    """A region given on the command line: ``box:X0,Y0,Z0,X1,Y1,Z1``."""
+@dataclass(frozen=True)
+class MeshRegion:
+    """The inside of a closed surface mesh (any format trimesh reads: STL, PLY, OBJ...), in mm."""
+    path: str
+
+    def __post_init__(self):
+        object.__setattr__(self, "_scene", None)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        scene, shape = self._loaded()
+        return occupancy.inside(scene, [shape], np.asarray(points))
+
+    def _loaded(self):
+        if self._scene is None:
+            import mitsuba as mi
+            import trimesh
+            try:
+                mesh = trimesh.load(self.path, force="mesh")
+            except (OSError, ValueError) as error:
+                raise RegionError(f"loaded region mesh:{self.path} cannot be read ({error})") from None
+            if not (mesh.is_watertight and abs(mesh.volume) > 0):
+                raise RegionError(f"loaded region mesh:{self.path} is not a closed surface: a region is the inside "
+                                  "of a closed mesh")
+            shape = mi.Mesh("region", len(mesh.vertices), len(mesh.faces))
+            params = mi.traverse(shape)
+            params["vertex_positions"] = mi.Float(np.asarray(mesh.vertices, dtype=np.float32).ravel())
+            params["faces"] = mi.UInt32(np.asarray(mesh.faces, dtype=np.uint32).ravel())
+            params.update()
+            scene = mi.load_dict({"type": "scene", "region": shape})
+            object.__setattr__(self, "_scene", (scene, scene.shapes()[0]))
+        return self._scene
+
+    def __str__(self) -> str:
+        return f"mesh:{self.path}"
+
+
+def parse_region(text: str) -> Box | MeshRegion:
+    """A region given on the command line: ``box:X0,Y0,Z0,X1,Y1,Z1`` or ``mesh:PATH``."""
     kind, _, values = str(text).partition(":")
+    if kind == "mesh":
+        if not Path(values).is_file():
+            raise RegionError(f"loaded region mesh file not found: {values} (give a closed surface mesh: STL, PLY, "
+                              "OBJ)")
+        return MeshRegion(str(Path(values).resolve()))
     if kind != "box":
         raise RegionError(f"a loaded region is {REGION_FORMAT}, got '{text}'")
     try:
