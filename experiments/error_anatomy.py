@@ -23,7 +23,7 @@ from mi_nest import occupancy
 from mi_nest.physics.tensors import COMPONENTS
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.checkpoints import load_field
-from mi_nest.reconstruct.fields import deviatoric_part
+from mi_nest.physics.tensors import deviatoric_part, tensor_norm
 from mi_nest.scene import specimen_bounds, specimen_shapes
 
 # Shares of the most stressed evaluation points whose part of the squared error is reported.
@@ -32,8 +32,8 @@ TOP_SHARES = (0.01, 0.05, 0.2)
 
 def error_shares(estimate, reference):
     """``{share: (share of truth norm^2, share of error^2, relative error there)}`` over the most stressed points."""
-    error = metrics.tensor_norm(estimate - reference) ** 2
-    magnitude = metrics.tensor_norm(reference) ** 2
+    error = tensor_norm(estimate - reference) ** 2
+    magnitude = tensor_norm(reference) ** 2
     order = np.argsort(-magnitude)
     shares = {}
     for share in TOP_SHARES:
@@ -89,8 +89,8 @@ def plot_slices(truth, estimate_field, scene, shapes, path, title):
         axes[0, k].set_title(f"truth {name}", fontsize=9)
         show(axes[1, k], estimate[:, k], scale)
         axes[1, k].set_title(f"reconstruction {name}", fontsize=9)
-    error = metrics.tensor_norm(estimate - true)
-    magnitude = metrics.tensor_norm(true)
+    error = tensor_norm(estimate - true)
+    magnitude = tensor_norm(true)
     show(axes[2, 0], magnitude, np.percentile(magnitude[inside], 99), "magma")
     axes[2, 0].set_title("|truth| (MPa)", fontsize=9)
     show(axes[2, 1], error, np.percentile(magnitude[inside], 99), "magma")
@@ -132,9 +132,9 @@ def main():
               f"{100 * error_share:.1f}% of the squared error, {100 * relative:.1f}% relative error there")
         row[f"top{100 * share:g}%_error_share"] = round(error_share, 4)
         row[f"top{100 * share:g}%_relative_error"] = round(relative, 4)
-    rest = np.argsort(-metrics.tensor_norm(probe.reference))[int(TOP_SHARES[1] * len(points)):]
-    row["relative_error_outside_top5%"] = round(float(np.linalg.norm(metrics.tensor_norm(estimate[rest] - probe.reference[rest]))
-                                                      / np.linalg.norm(metrics.tensor_norm(probe.reference[rest]))), 4)
+    rest = np.argsort(-tensor_norm(probe.reference))[int(TOP_SHARES[1] * len(points)):]
+    row["relative_error_outside_top5%"] = round(float(np.linalg.norm(tensor_norm(estimate[rest] - probe.reference[rest]))
+                                                      / np.linalg.norm(tensor_norm(probe.reference[rest]))), 4)
     print(f"  elsewhere: {100 * row['relative_error_outside_top5%']:.1f}% relative error")
     if field.kind == "grid":
         for resolution, sampled, best in floors(field, truth, scene, shapes, points,

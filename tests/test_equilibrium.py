@@ -10,7 +10,8 @@ from mi_nest.fields.sources import load_mesh, stress_file
 from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import FieldConfig, OptimizeConfig
 from mi_nest.reconstruct import equilibrium
-from mi_nest.reconstruct.fields import DeviatoricGrid, deviatoric_part, field_from_state, grid_shape
+from mi_nest.physics.tensors import deviatoric_part
+from mi_nest.reconstruct.fields import DeviatoricGrid, field_from_state, grid_shape
 
 
 def _random_case(seed=0, shape=(5, 4, 6)):

@@ -12,7 +12,8 @@ from mi_nest.fields.base import sample
 from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import FieldConfig, optimize
 from mi_nest.reconstruct.evaluation import heldout_predictions
-from mi_nest.reconstruct.fields import DeviatoricGrid, deviatoric_part
+from mi_nest.physics.tensors import deviatoric_part
+from mi_nest.reconstruct.fields import DeviatoricGrid
 from mi_nest.reconstruct.trust import TRUST_FILE, TrustMap, imbalance, trust_map
 
 

@@ -17,8 +17,7 @@ from scipy.stats import spearmanr
 from .. import occupancy
 from ..fields.base import sample
 from ..physics.tensors import principal_axes, von_mises
-from ..reconstruct.fields import deviatoric_part
-from ..reconstruct.metrics import tensor_norm
+from ..physics.tensors import deviatoric_part, tensor_norm
 from ..reconstruct.trust import TrustMap
 from ..scene import specimen_shapes
 from .plots import pyplot, save_figure

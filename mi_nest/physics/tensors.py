@@ -85,3 +85,15 @@ def von_mises(stress6: np.ndarray) -> np.ndarray:
     """The von Mises stress of ``(..., 6)`` tensors."""
     xx, yy, zz, yz, zx, xy = np.moveaxis(np.asarray(stress6, dtype=np.float64), -1, 0)
     return np.sqrt(0.5 * ((xx - yy) ** 2 + (yy - zz) ** 2 + (zz - xx) ** 2) + 3.0 * (xy ** 2 + yz ** 2 + zx ** 2))
+
+
+def deviatoric_part(stress: np.ndarray) -> np.ndarray:
+    """Deviatoric part of ``(..., 6)`` stress arrays in 3D-TSV order (NumPy)."""
+    stress = np.asarray(stress, dtype=np.float64)
+    mean = stress[..., :3].sum(axis=-1, keepdims=True) / 3.0
+    return np.concatenate([stress[..., :3] - mean, stress[..., 3:]], axis=-1)
+
+
+def tensor_norm(s6: np.ndarray) -> np.ndarray:
+    """Frobenius norm of symmetric tensors in 6-vector form (shear components count twice)."""
+    return np.sqrt((s6[..., :3] ** 2).sum(-1) + 2.0 * (s6[..., 3:] ** 2).sum(-1))

@@ -408,13 +408,6 @@ def field_from_state(state: dict) -> TrainableField:
     return field
 
 
-def deviatoric_part(stress: np.ndarray) -> np.ndarray:
-    """Deviatoric part of ``(..., 6)`` stress arrays in 3D-TSV order (NumPy)."""
-    stress = np.asarray(stress, dtype=np.float64)
-    mean = stress[..., :3].sum(axis=-1, keepdims=True) / 3.0
-    return np.concatenate([stress[..., :3] - mean, stress[..., 3:]], axis=-1)
-
-
 def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
     """``field`` resampled onto a grid of ``resolution`` nodes along the longest axis (coarse to fine)."""
     config = replace(field.config, kind="grid", resolution=int(resolution))

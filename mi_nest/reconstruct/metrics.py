@@ -10,9 +10,9 @@ import numpy as np
 from .. import occupancy
 from ..fields.base import StressField, sample
 from ..io.grid import grid_nodes
-from ..physics.tensors import principal_difference
+from ..physics.tensors import deviatoric_part, principal_difference, tensor_norm
 from ..scene import specimen_bounds
-from .fields import TrainableField, deviatoric_part
+from .fields import TrainableField
 
 if TYPE_CHECKING:
     import scipy.sparse
@@ -39,11 +39,6 @@ def evaluation_points(scene: mi.Scene, shapes: list[mi.Shape], points_per_axis: 
     axes = [np.arange(lo + 0.5 * spacing, hi, spacing) for lo, hi in zip(low, high)]
     lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     return lattice[occupancy.inside(scene, shapes, lattice)]
-
-
-def tensor_norm(s6: np.ndarray) -> np.ndarray:
-    """Frobenius norm of symmetric tensors in 6-vector form (shear components count twice)."""
-    return np.sqrt((s6[..., :3] ** 2).sum(-1) + 2.0 * (s6[..., 3:] ** 2).sum(-1))
 
 
 def stress_errors(field: StressField, truth: StressField, points: np.ndarray) -> StressErrors:

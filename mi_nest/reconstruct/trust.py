@@ -42,8 +42,8 @@ from ..io.grid import grid_nodes
 from ..physics import MEASUREMENTS
 from . import equilibrium
 from .evaluation import view_mask
-from .fields import TrainableField, deviatoric_part, grid_shape
-from .metrics import tensor_norm
+from ..physics.tensors import deviatoric_part, tensor_norm
+from .fields import TrainableField, grid_shape
 from .rays import ViewRays
 
 # Training views sampled for the coverage (evenly over the split): enough to see every direction of the rig.

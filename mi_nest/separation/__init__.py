@@ -20,6 +20,7 @@ from ..fields.base import sample
 from ..fields.grid import GridField
 from ..io.atomic import atomic_path
 from ..io.grid import StressGrid
+from ..physics.tensors import deviatoric_part, tensor_norm
 from ..scene import specimen_bounds, specimen_media, specimen_shapes
 from .regions import Box, MeshRegion, RegionError, fem_loaded, model_loaded, parse_region, suspect_loads
 from .solver import Lattice, smooth_extension, solve_mean_stress
@@ -84,14 +85,9 @@ def lattice_of(field: StressField, shapes: list[mi.Shape], resolution: int | Non
     return Lattice(low, low + spacing * (counts - 1), tuple(int(c) for c in counts)), False
 
 
-def trace_free(stress6: np.ndarray) -> np.ndarray:
-    mean = stress6[:, :3].mean(axis=1, keepdims=True)
-    return np.concatenate([stress6[:, :3] - mean, stress6[:, 3:]], axis=1)
-
-
 def _stress_scale(stress6: np.ndarray) -> float:
     """RMS Frobenius norm of ``(N, 6)`` tensors."""
-    return float(np.sqrt(np.mean(np.sum(stress6[:, :3] ** 2, axis=1) + 2 * np.sum(stress6[:, 3:] ** 2, axis=1))))
+    return float(np.sqrt(np.mean(tensor_norm(stress6) ** 2)))
 
 
 def _scene_model(scene: mi.Scene) -> StressField | None:
@@ -150,7 +146,7 @@ def separate(source, scene: mi.Scene, loaded: tuple = (), resolution: int | None
     if not node_inside.any():
         raise SeparationError(f"no node of the {'x'.join(map(str, lattice.shape))} grid lies inside the part: "
                               "raise the resolution")
-    deviator = trace_free(sample(field, nodes))
+    deviator = deviatoric_part(sample(field, nodes))
     if not np.all(np.isfinite(deviator[node_inside])):
         raise SeparationError("the field holds NaN or inf inside the part")
     if not own:

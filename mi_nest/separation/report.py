@@ -8,20 +8,11 @@ import numpy as np
 from ..fields import StressField
 from ..fields.base import sample
 from ..io.atomic import atomic_path
+from ..physics.tensors import deviatoric_part, tensor_norm
 from .solver import Lattice
 
 # "Away from the loaded regions": farther from every loaded surface point than this share of the part's size.
 AWAY_SHARE = 0.1
-
-
-def _norm(stress6: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.sum(stress6[:, :3] ** 2, axis=1) + 2 * np.sum(stress6[:, 3:] ** 2, axis=1))
-
-
-def _trace_free(stress6: np.ndarray) -> np.ndarray:
-    out = stress6.copy()
-    out[:, :3] -= stress6[:, :3].mean(axis=1, keepdims=True)
-    return out
 
 
 def inside_nodes(separation) -> np.ndarray:
@@ -33,10 +24,10 @@ def inside_nodes(separation) -> np.ndarray:
 def errors(found: np.ndarray, truth: np.ndarray) -> dict:
     """Relative errors of ``(N, 6)`` full tensors against the truth's: the full tensor's, the deviator's, and the
     mean stress's RMS error per the truth's RMS stress (its stress scale)."""
-    scale = float(np.sqrt(np.mean(_norm(truth) ** 2)))
-    return {"full": float(np.sqrt(np.mean(_norm(found - truth) ** 2)) / scale),
-            "deviatoric": float(np.sqrt(np.mean(_norm(_trace_free(found) - _trace_free(truth)) ** 2)
-                                        / np.mean(_norm(_trace_free(truth)) ** 2))),
+    scale = float(np.sqrt(np.mean(tensor_norm(truth) ** 2)))
+    return {"full": float(np.sqrt(np.mean(tensor_norm(found - truth) ** 2)) / scale),
+            "deviatoric": float(np.sqrt(np.mean(tensor_norm(deviatoric_part(found) - deviatoric_part(truth)) ** 2)
+                                        / np.mean(tensor_norm(deviatoric_part(truth)) ** 2))),
             "mean_per_scale": float(np.sqrt(np.mean((found[:, :3].mean(1) - truth[:, :3].mean(1)) ** 2)) / scale),
             "points": int(len(found))}
 
