@@ -4,8 +4,8 @@
    4 mm contacts, Boussinesq's half-space) and the kitten's FEM field: only their deviator is given; the separated
    mean stress is compared with their own, at the lattice's nodes inside the part, everywhere and away from the
    loads (a tenth of the part's size from the loaded surface, or from the point load), per the RMS stress there.
-2. Reconstructions (the accuracy suite's disk and kitten targets, where they exist): the full tensor's error beside
-   the deviator's.
+2. Reconstructions (the accuracy suite's grid results, :data:`RECONSTRUCTIONS`, where they exist): the full
+   tensor's error beside the deviator's.
 3. Speed: a 64^3 lattice filled by a cube, in a child process (its peak memory is the child's).
 
     python benchmarks/separation.py [--quick]
@@ -60,6 +60,17 @@ CASES = [
 ]
 
 
+# The accuracy suite's grid results (benchmarks/accuracy_suite.py), where they exist, with the loaded regions a
+# user gives where the scene does not know them (the bracket's file records no loads: its tip face and the clamp
+# at the post's top, scripts/make_fem_specimens.py).
+RECONSTRUCTIONS = [("disk target", "disk_100N", ()), ("kitten target", "kitten", ()), ("300 N disk", "disk_300N", ()),
+                   ("600 N disk", "disk_600N", ()), ("stacked disks", "stacked_disks", ()),
+                   ("bracket (FEM), loads not given", "bracket", ()),
+                   ("bracket (FEM), tip and clamp given", "bracket", ("box:59,-1,-6,61,11,6", "box:-1,49,-6,11,51,6")),
+                   ("shaft in torsion", "shaft_torsion", ()), ("Lame cylinder", "lame_cylinder", ()),
+                   ("Boussinesq", "boussinesq", ()), ("disk in water", "disk_water", ())]
+
+
 def exact_case(name, make, point_loads, resolution) -> dict:
     scene = make()
     truth = specimen_media(scene)[0].field
@@ -81,11 +92,11 @@ def exact_case(name, make, point_loads, resolution) -> dict:
             "seconds": round(seconds, 2), "cells": result.summary["cells"]}
 
 
-def reconstruction_case(name, directory: Path) -> dict:
+def reconstruction_case(name, directory: Path, loaded=()) -> dict:
     source = open_source(directory)
     truth = source.truth()
     start = time.perf_counter()
-    result = separate(source.field, source.scene)
+    result = separate(source.field, source.scene, loaded)
     seconds = time.perf_counter() - start
     compared = against_truth(result, truth.field or specimen_media(truth.scene)[0].field)
     everywhere, far = compared["all"], compared.get("away_from_loads", compared["all"])
@@ -125,9 +136,9 @@ def main():
             rows.append(exact_case(name, make, point_loads, resolution))
             print(rows[-1], flush=True)
     if not args.quick:
-        for name, case in (("disk target", "disk_100N"), ("kitten target", "kitten")):
+        for name, case, loaded in RECONSTRUCTIONS:
             if (SUITE / case).is_dir():
-                rows.append(reconstruction_case(name, SUITE / case))
+                rows.append(reconstruction_case(name, SUITE / case, loaded))
                 print(rows[-1], flush=True)
     size = 32 if args.quick else 64
     child = subprocess.run([sys.executable, __file__, "--cube-child", str(size)], capture_output=True, text=True,

@@ -97,8 +97,8 @@ def _scene_model(scene: mi.Scene) -> StressField | None:
 
 def scene_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarray, spacing: float) -> np.ndarray:
     """The surface points the scene's model loads: near the loaded and fixed nodes of the FEM model behind its
-    specimens, or else where its stress model puts traction on the surface (``inside_nodes``: points inside the
-    part where its stress scale is taken)."""
+    specimens (none where their files record no loads), or for a stress model, where it puts traction on the
+    surface (``inside_nodes``: points inside the part where its stress scale is taken)."""
     by_fem = fem_loaded(shapes, surface, spacing)
     if by_fem is not None:
         return by_fem

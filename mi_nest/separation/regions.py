@@ -23,6 +23,7 @@ from .surface import Surface
 # curved part tilts the normals by a few degrees, so a free surface reads a few % of its stress as traction).
 TRACTION_SHARE = 0.1
 ABSOLUTE_SHARE = 0.01
+FACETED_SHARE = 0.05
 # A loaded region reaches this many grid spacings past the points where the traction was found.
 MARGIN_CELLS = 2.0
 
@@ -119,31 +120,31 @@ def model_loaded(field: StressField | None, surface: Surface, scale: float, spac
         return np.zeros(len(surface), dtype=bool)
     traction, stress = tractions(field, surface, 0.05 * spacing)
     magnitude = np.linalg.norm(traction, axis=-1)
-    loaded = (magnitude > ABSOLUTE_SHARE * scale) | (magnitude > TRACTION_SHARE * stress)
+    loaded = (magnitude > TRACTION_SHARE * stress) | ((magnitude > ABSOLUTE_SHARE * scale)
+                                                     & (magnitude > FACETED_SHARE * stress))
     return widened(surface, loaded, MARGIN_CELLS * spacing)
 
 
 def fem_loaded(shapes: list, surface: Surface, spacing: float) -> np.ndarray | None:
     """Which surface points lie near a node that an FEM model behind the specimens loads or holds (3D-TSV node
-    forces and fixed nodes, a mesh ``.npz``'s own), within :data:`MARGIN_CELLS` spacings and a node spacing;
-    None when no specimen comes from a file that records its loads."""
+    forces and fixed nodes, a mesh ``.npz``'s own), within :data:`MARGIN_CELLS` spacings and a node spacing.
+    None when no specimen comes from a stress file; none loaded where its file records no loads (an FEM field's
+    traction on its faces says little about where it was loaded: its stress is recovered to the nodes)."""
     from scipy.spatial import cKDTree
 
     from ..fields.sources import load_mesh
     from ..scene import specimen_file
-    nodes = []
-    for shape in shapes:
-        path = specimen_file(shape)
-        boundary = None if path is None else load_mesh(path).boundary
-        if boundary is not None and (len(boundary.force_nodes) or len(boundary.fixed_nodes)):
-            mesh_nodes = load_mesh(path).nodes
-            held = mesh_nodes[np.concatenate([boundary.force_nodes, boundary.fixed_nodes])]
-            neighbour = cKDTree(mesh_nodes).query(held, k=2)[0][:, 1]
-            nodes.append((held, float(np.median(neighbour))))
-    if not nodes:
+    paths = [specimen_file(shape) for shape in shapes]
+    if all(path is None for path in paths):
         return None
     loaded = np.zeros(len(surface), dtype=bool)
-    for held, node_spacing in nodes:
+    for path in paths:
+        mesh = None if path is None else load_mesh(path)
+        boundary = None if mesh is None else mesh.boundary
+        if boundary is None or not (len(boundary.force_nodes) or len(boundary.fixed_nodes)):
+            continue
+        held = mesh.nodes[np.concatenate([boundary.force_nodes, boundary.fixed_nodes])]
+        node_spacing = float(np.median(cKDTree(mesh.nodes).query(held, k=2)[0][:, 1]))
         distance, _ = cKDTree(held).query(surface.points, distance_upper_bound=MARGIN_CELLS * spacing + node_spacing)
         loaded |= np.isfinite(distance)
     return loaded
