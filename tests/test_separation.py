@@ -89,6 +89,23 @@ def test_boussinesq_half_space_away_from_the_point_load():
     assert _mean_error(separation, _model(half_space), away) < 0.01
 
 
+def test_a_faceted_free_surface_is_not_read_as_loaded():
+    # The shaft's cylinder is a polygon: its facets tilt the normal by up to a few degrees, and the shear on them
+    # reads as a few % of traction; only its end faces are loaded. Its mean stress is zero.
+    shaft = mi_nest.load_scene("shaft_torsion")
+    separation = separate(None, shaft, resolution=32)
+    assert 0.7 < separation.summary["loaded"]["free_share"] < 0.9
+    scale = np.sqrt(np.mean(np.sum(separation.grid.stress[separation.inside][:, 3:] ** 2, axis=1) * 2))
+    assert np.abs(separation.mean[separation.inside]).max() < 1e-3 * scale
+
+
+def test_an_fem_file_that_records_no_loads_gives_none():
+    bracket = mi_nest.load_scene("bracket")
+    separation = separate(None, bracket, resolution=24)
+    assert separation.summary["loaded"]["by_model"] == 0.0
+    assert separation.summary["suspect_loads"]          # its clamp and tip carry traction: reported
+
+
 def test_the_fields_trace_is_ignored():
     tube = mi_nest.load_scene("lame_cylinder")
     exact = separate(None, tube, resolution=24)
