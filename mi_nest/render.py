@@ -1,6 +1,7 @@
 """Render a photoelastic scene to named channels, in passes with a progress bar."""
 from __future__ import annotations
 
+import math
 import os
 import resource
 import time
@@ -15,7 +16,7 @@ from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
-from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor
+from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
 from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -218,3 +219,28 @@ def _read_numbers(path, key=None):
     except (OSError, ValueError, IndexError):   # no such file, or "max" (no limit)
         return None
     return None
+
+
+class ViewError(ValueError):
+    """A view's light or load that no render can take."""
+
+
+def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | None = None) -> float:
+    """The factor on every phase of a view at ``load_scale`` times the load and at ``wavelength`` (nm; None:
+    the material's): the stress-optic coefficient C is the material's, so the phase goes as 1 / wavelength."""
+    check_light_and_load(load_scale, wavelength)
+    if wavelength is None:
+        return float(load_scale)
+    wavelengths = {medium.wavelength for medium in specimen_media(scene)}
+    if len(wavelengths) > 1:
+        raise ViewError(f"the specimens' media are given at different wavelengths ({sorted(wavelengths)} nm): "
+                        "leave the wavelength at each medium's own")
+    return float(load_scale) * wavelengths.pop() / wavelength
+
+
+def check_light_and_load(load_scale: float, wavelength: float | None) -> None:
+    """Refuse a load scale that is not finite, or a wavelength that is not a positive number of nm."""
+    if not math.isfinite(load_scale):
+        raise ViewError(f"the load scale must be a finite number, got {load_scale}")
+    if wavelength is not None and not (math.isfinite(wavelength) and wavelength > 0):
+        raise ViewError(f"the wavelength must be a positive number of nm, got {wavelength}")

@@ -26,7 +26,7 @@ from .. import occupancy
 from ..arguments import whole_number
 from ..arrays import device_array
 from ..physics.polariscope import Polariscope, polariscope_setting
-from ..render import RenderResult, require_memory
+from ..render import RenderResult, check_light_and_load, phase_scale, require_memory
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
 from ..version import __version__
 
@@ -171,7 +171,7 @@ class SliceSpec:
         if not (math.isfinite(self.thickness) and self.thickness > 0):
             raise SliceError(f"the slice thickness must be a positive number of mm, got {self.thickness}")
         whole_number("resolution", self.resolution, minimum=2)
-        _check_light_and_load(self.load_scale, self.wavelength)     # before any scene is loaded
+        check_light_and_load(self.load_scale, self.wavelength)      # before any scene is loaded
 
     def describe(self) -> str:
         return (f"slice {self.plane.describe()}, {self.thickness:g} mm thick"
@@ -343,26 +343,6 @@ def _in_order(begin: np.ndarray, *others: np.ndarray) -> tuple[np.ndarray, ...]:
     order = np.argsort(begin, axis=0, kind="stable")
     kept = max(int(np.isfinite(begin).sum(axis=0).max()), 1)
     return tuple(np.take_along_axis(x, order, axis=0)[:kept] for x in (begin, *others))
-
-
-def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | None = None) -> float:
-    """The factor on every phase of a view at ``load_scale`` times the load and at ``wavelength`` (nm; None:
-    the material's): the stress-optic coefficient C is the material's, so the phase goes as 1 / wavelength."""
-    _check_light_and_load(load_scale, wavelength)
-    if wavelength is None:
-        return float(load_scale)
-    wavelengths = {medium.wavelength for medium in specimen_media(scene)}
-    if len(wavelengths) > 1:
-        raise SliceError(f"the specimens' media are given at different wavelengths ({sorted(wavelengths)} nm): "
-                         "leave the wavelength at each medium's own")
-    return float(load_scale) * wavelengths.pop() / wavelength
-
-
-def _check_light_and_load(load_scale: float, wavelength: float | None) -> None:
-    if not math.isfinite(load_scale):
-        raise SliceError(f"the load scale must be a finite number, got {load_scale}")
-    if wavelength is not None and not (math.isfinite(wavelength) and wavelength > 0):
-        raise SliceError(f"the wavelength must be a positive number of nm, got {wavelength}")
 
 
 def _empty_message(scene, spec):

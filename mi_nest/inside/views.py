@@ -20,10 +20,9 @@ from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope
 from ..reconstruct.evaluation import view_psnr
-from ..render import RenderResult, render
+from ..render import RenderResult, phase_scale, render
 from ..scene import photoelastic_integrator, pose
 from .plots import pyplot, save_figure
-from .slicing import phase_scale
 from .source import ViewSource
 
 ANIMATION_SUFFIXES = (".gif", ".mp4")
