@@ -617,35 +617,26 @@ def _principal(args):
 
 def _separate(args):
     import contextlib
-    import json
 
     from .inside import open_source
-    from .io.atomic import atomic_path
     from .io.lock import locked_directory
     from .reconstruct.checkpoints import record_separation
-    from .separation import parse_region, separate
+    from .separation import FULL_FILE, parse_region, separate
     from .separation.regions import suspect_line
-    from .separation.report import against_truth, write_figure
     regions = [parse_region(text) for text in args.loaded]          # before the scene loads
     source = open_source(args.source, dict(args.defines))
     output = Path(args.output)
-    _refuse_overwriting_source({"-o": output / "full.npz"}, args.source, source)
+    _refuse_overwriting_source({"-o": output / FULL_FILE}, args.source, source)
     truth = source.truth() if source.is_reconstruction or source.full else source
-    truth_field = None if truth is None else (truth.field or _scene_own_field(truth.scene))
     # A reconstruction records its separations: no run may rewrite it meanwhile.
     held = locked_directory(args.source) if source.deviatoric else contextlib.nullcontext()
     with locked_directory(output), held:
-        result = separate(source.field, source.scene, regions, args.resolution,
-                          model_loads=not args.no_scene_loads)
-        summary = {"source": str(Path(args.source).resolve()) if Path(args.source).exists() else args.source,
-                   "defines": dict(args.defines), **result.summary}
-        if truth_field is not None:
-            summary["against_truth"] = against_truth(result, truth_field)
-        path = result.save(output)
-        with atomic_path(output / "separation.json", ".json") as tmp:
-            Path(tmp).write_text(json.dumps(summary, indent=2) + "\n")
-        figure = write_figure(output / "separation.png", result, truth_field,
-                              f"{Path(args.source).name}: mean stress by equilibrium")
+        result = separate(source.field, source.scene, regions, args.resolution, model_loads=not args.no_scene_loads)
+        record = {"source": str(Path(args.source).resolve()) if Path(args.source).exists() else args.source,
+                  "defines": dict(args.defines)}
+        written = result.write(output, record, None if truth is None else truth.field or _scene_own_field(truth.scene),
+                               f"{Path(args.source).name}: mean stress by equilibrium")
+        summary = result.summary
         if source.deviatoric:
             record_separation(args.source, {"output": str(output.resolve()), "loaded": summary["loaded"],
                                             "residual": summary["residual"], "grid": summary["grid"],
@@ -663,16 +654,14 @@ def _separate(args):
         warnings.warn(suspect_line(patch))
     if len(summary["suspect_loads"]) > SUSPECTS_SHOWN:
         warnings.warn(f"{len(summary['suspect_loads']) - SUSPECTS_SHOWN} smaller such patches are listed in "
-                      f"{output / 'separation.json'} (suspect_loads)")
-    if "against_truth" in summary:
-        for kind, label in (("all", "inside the part"), ("away_from_loads", "away from the loaded regions")):
-            if kind in summary["against_truth"]:
-                e = summary["against_truth"][kind]
-                print(f"against the truth, {label}: full tensor {100 * e['full']:.2f}%, deviator "
-                      f"{100 * e['deviatoric']:.2f}%, mean stress {100 * e['mean_per_scale']:.2f}% of the stress "
-                      "scale")
-    for written in (path, output / "separation.json", figure):
-        print(f"wrote {written.resolve()}")
+                      f"{written[1]} (suspect_loads)")
+    for kind, label in (("all", "inside the part"), ("away_from_loads", "away from the loaded regions")):
+        if kind in summary.get("against_truth", {}):
+            e = summary["against_truth"][kind]
+            print(f"against the truth, {label}: full tensor {100 * e['full']:.2f}%, deviator "
+                  f"{100 * e['deviatoric']:.2f}%, mean stress {100 * e['mean_per_scale']:.2f}% of the stress scale")
+    for path in written:
+        print(f"wrote {path.resolve()}")
 
 
 # The largest patches of free surface left carrying traction that a separation prints (the rest: separation.json).

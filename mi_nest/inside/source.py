@@ -13,9 +13,10 @@ from ..fields import StressField
 from ..reconstruct import Reconstruction
 from ..reconstruct.trust import TRUST_FILE, TrustMap
 from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
+from ..separation import FULL_FILE, RECORD_FILE
 
 RESULT_FILES = ("reconstruction.json", "field.npz")
-SEPARATION_FILES = ("separation.json", "full.npz")
+SEPARATION_FILES = (RECORD_FILE, FULL_FILE)
 
 
 @dataclass
@@ -86,12 +87,12 @@ def _separation(path: Path, defines: dict | None) -> ViewSource:
     from ..fields.grid import GridField
     from ..io.grid import load_stress_grid
     try:
-        record = json.loads((path / "separation.json").read_text())
+        record = json.loads((path / RECORD_FILE).read_text())
         separated = record["source"]
     except (ValueError, KeyError, OSError) as error:
-        raise ValueError(f"{path}/separation.json cannot be read ({error}): run mi-nest separate again") from None
+        raise ValueError(f"{path / RECORD_FILE} cannot be read ({error}): run mi-nest separate again") from None
     base = open_source(separated, {**record.get("defines", {}), **dict(defines or {})})
-    return ViewSource(base.scene, GridField(load_stress_grid(path / "full.npz")), str(path), base.reconstruction,
+    return ViewSource(base.scene, GridField(load_stress_grid(path / FULL_FILE)), str(path), base.reconstruction,
                       base.trust, full=True)
 
 

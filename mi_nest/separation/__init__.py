@@ -7,6 +7,7 @@ lattice over the scene's specimens (a reconstruction grid's own nodes), finds wh
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
@@ -33,6 +34,8 @@ DEFAULT_RESOLUTION = 64
 # A free surface smaller than this share of the part's surface cannot fix the mean stress reliably.
 LEAST_FREE_SHARE = 0.01
 FULL_FILE = "full.npz"
+RECORD_FILE = "separation.json"
+FIGURE_FILE = "separation.png"
 LATTICE_OFFSET = 0.618
 
 
@@ -64,6 +67,21 @@ class Separation:
             np.savez_compressed(tmp, stress=self.grid.stress, bbox_min=self.grid.bbox_min, bbox_max=self.grid.bbox_max,
                                 mean_stress=self.mean.astype(np.float32), inside=self.inside)
         return path
+
+    def write(self, directory: str | Path, record: dict, truth: StressField | None, title: str) -> list[Path]:
+        """``full.npz`` (:meth:`save`), ``separation.json`` (``record``, where it came from, with the summary and,
+        given the ``truth``, the errors against it: :attr:`summary` gains them) and ``separation.png`` (the mean
+        stress on the middle plane, ``title`` above) in ``directory``."""
+        from .report import against_truth, write_figure
+        if truth is not None:
+            self.summary["against_truth"] = against_truth(self, truth)
+        directory = Path(directory)
+        written = [self.save(directory)]
+        with atomic_path(directory / RECORD_FILE, ".json") as tmp:
+            Path(tmp).write_text(json.dumps({**record, **self.summary}, indent=2) + "\n")
+        written.append(directory / RECORD_FILE)
+        written.append(write_figure(directory / FIGURE_FILE, self, truth, title))
+        return written
 
 
 def lattice_of(field: StressField, shapes: list[mi.Shape], resolution: int | None) -> tuple[Lattice, bool]:
