@@ -24,11 +24,11 @@ from scipy.stats import spearmanr
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest import occupancy
 from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
+from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction
 from mi_nest.reconstruct.evaluation import heldout_predictions
 from mi_nest.reconstruct.trust import TRUST_FILE, error_map, trust_map
-from mi_nest.scene import specimen_shapes
+from mi_nest.scene import scene_field, specimen_shapes
 from reconstruction import cpu_name
 
 HERE = Path(__file__).resolve().parents[1]

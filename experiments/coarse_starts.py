@@ -24,12 +24,12 @@ from scipy.stats import spearmanr
 
 import mi_nest
 from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
+from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.optimization import stress_scale
-from mi_nest.scene import specimen_bounds, specimen_media, specimen_shapes
+from mi_nest.scene import scene_field, specimen_bounds, specimen_media, specimen_shapes
 
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "benchmarks"))

@@ -31,10 +31,10 @@ import numpy as np
 
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, scene_field, truth_scene
+from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction, metrics
 from mi_nest.reconstruct.evaluation import SampledViewLoss
-from mi_nest.scene import specimen_shapes
+from mi_nest.scene import scene_field, specimen_shapes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from reconstruction import cpu_name  # noqa: E402

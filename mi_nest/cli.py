@@ -621,6 +621,7 @@ def _separate(args):
     from .inside import open_source
     from .io.lock import locked_directory
     from .reconstruct.checkpoints import record_separation
+    from .scene import scene_field
     from .separation import FULL_FILE, parse_region, separate
     from .separation.regions import suspect_line
     regions = [parse_region(text) for text in args.loaded]          # before the scene loads
@@ -634,7 +635,7 @@ def _separate(args):
         result = separate(source.field, source.scene, regions, args.resolution, model_loads=not args.no_scene_loads)
         record = {"source": str(Path(args.source).resolve()) if Path(args.source).exists() else args.source,
                   "defines": dict(args.defines)}
-        written = result.write(output, record, None if truth is None else truth.field or _scene_own_field(truth.scene),
+        written = result.write(output, record, None if truth is None else truth.field or scene_field(truth.scene),
                                f"{Path(args.source).name}: mean stress by equilibrium")
         summary = result.summary
         if source.deviatoric:
@@ -666,11 +667,6 @@ def _separate(args):
 
 # The largest patches of free surface left carrying traction that a separation prints (the rest: separation.json).
 SUSPECTS_SHOWN = 3
-
-
-def _scene_own_field(scene):
-    from .dataset.truth import scene_field
-    return scene_field(scene)
 
 
 def _view(args):

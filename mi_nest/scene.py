@@ -229,6 +229,12 @@ def specimen_media(scene: mi.Scene) -> list[StressMedium]:
     return list({id(s.interior_medium()): s.interior_medium() for s in specimen_shapes(scene)}.values())
 
 
+def scene_field(scene: mi.Scene):
+    """The one stress field of ``scene``'s specimens, or None when they hold different fields."""
+    media = specimen_media(scene)
+    return media[0].field if len({id(m.field) for m in media}) == 1 else None
+
+
 def pose(scene: mi.Scene, to_world: np.ndarray) -> None:
     """Move the scene's polariscope camera to ``to_world`` (4x4)."""
     params = mi.traverse(camera_of(scene))

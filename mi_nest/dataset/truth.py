@@ -17,7 +17,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..scene import SceneError, load_scene, scene_origin, specimen_bounds, specimen_media, specimen_shapes
+from ..scene import SceneError, load_scene, scene_origin, specimen_bounds, specimen_shapes
 
 # Defines that set how the camera samples the images, not the specimen or its stress: the images' size is
 # checked against the film where rays are made, so they need not match the record.
@@ -88,12 +88,6 @@ def truth_scene(scene: mi.Scene, source: dict, what: str) -> mi.Scene:
                   f"against the recorded field ({record.file.name} with {_defines_text(record.defines)}). Load "
                   f"the scene with the dataset's defines to silence this", RuntimeWarning, stacklevel=3)
     return recorded
-
-
-def scene_field(scene: mi.Scene):
-    """The one stress field of ``scene``'s specimens, or None when they hold different fields."""
-    media = specimen_media(scene)
-    return media[0].field if len({id(m.field) for m in media}) == 1 else None
 
 
 def scene_defaults(path: Path) -> dict[str, str]:

@@ -180,8 +180,7 @@ class Reconstruction:
         record = {"config": self.config.to_dict(), "metrics": self.metrics, "seconds": self.seconds,
                   "field": self.field.describe(), "parameters": self.field.parameter_count(),
                   "source": self.source, "history": self.history}
-        with atomic_path(directory / "reconstruction.json", ".json") as tmp:
-            Path(tmp).write_text(json.dumps(record, indent=1))
+        _write_record(directory, record)
         return directory
 
     @classmethod
@@ -217,7 +216,11 @@ def record_separation(directory: str | Path, entry: dict) -> None:
         record = json.loads(path.read_text())
     record["separations"] = [kept for kept in record.get("separations", []) if kept.get("output") != entry["output"]]
     record["separations"].append(entry)
-    with atomic_path(path, ".json") as tmp:
+    _write_record(directory, record)
+
+
+def _write_record(directory: str | Path, record: dict) -> None:
+    with atomic_path(Path(directory) / "reconstruction.json", ".json") as tmp:
         Path(tmp).write_text(json.dumps(record, indent=1))
 
 

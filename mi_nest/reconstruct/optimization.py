@@ -18,11 +18,11 @@ import numpy as np
 
 from .. import interrupts
 from ..dataset import Dataset
-from ..dataset.truth import recorded_scene, scene_field, truth_scene
+from ..dataset.truth import recorded_scene, truth_scene
 from ..fields.base import StressField
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
-from ..scene import load_scene, scene_file, specimen_bounds, specimen_media, specimen_shapes
+from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specimen_media, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import dataclass, field as dataclass_field
+from functools import cached_property
 from pathlib import Path
 
 import mitsuba as mi
@@ -22,7 +23,7 @@ from ..fields.grid import GridField
 from ..io.atomic import atomic_path
 from ..io.grid import StressGrid
 from ..physics.tensors import deviatoric_part, tensor_norm
-from ..scene import specimen_bounds, specimen_media, specimen_shapes
+from ..scene import scene_field, specimen_bounds, specimen_shapes
 from .regions import Box, MeshRegion, RegionError, fem_loaded, model_loaded, parse_region, suspect_loads
 from .solver import Lattice, smooth_extension, solve_mean_stress
 from .surface import SeparationError, specimen_surface
@@ -50,9 +51,9 @@ class Separation:
     summary: dict = dataclass_field(default_factory=dict)
     loaded_points: np.ndarray = dataclass_field(default_factory=lambda: np.zeros((0, 3)))
 
-    @property
+    @cached_property
     def field(self) -> GridField:
-        """The full stress as a field any view or export takes."""
+        """The full stress as a field any view or export takes (made once: a texture on the device)."""
         return GridField(self.grid)
 
     def field_values(self, points: np.ndarray) -> np.ndarray:
@@ -108,11 +109,6 @@ def _stress_scale(stress6: np.ndarray) -> float:
     return float(np.sqrt(np.mean(tensor_norm(stress6) ** 2)))
 
 
-def _scene_model(scene: mi.Scene) -> StressField | None:
-    media = specimen_media(scene)
-    return media[0].field if len({id(m.field) for m in media}) == 1 else None
-
-
 def scene_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarray, spacing: float) -> np.ndarray:
     """The surface points the scene's model loads: near the loaded and fixed nodes of the FEM model behind its
     specimens (none where their files record no loads), or for a stress model, where it puts traction on the
@@ -120,7 +116,7 @@ def scene_loads(scene: mi.Scene, shapes: list, surface, inside_nodes: np.ndarray
     by_fem = fem_loaded(shapes, surface, spacing)
     if by_fem is not None:
         return by_fem
-    model = _scene_model(scene)
+    model = scene_field(scene)
     scale = 0.0 if model is None else _stress_scale(sample(model, inside_nodes))
     return model_loaded(model, surface, scale, spacing) if scale > 0 else np.zeros(len(surface), dtype=bool)
 
@@ -149,7 +145,7 @@ def separate(source, scene: mi.Scene, loaded: tuple = (), resolution: int | None
     longest side (default: a grid field's own nodes, else :data:`DEFAULT_RESOLUTION`).
     """
     start = time.perf_counter()
-    field = _scene_model(scene) if source is None else getattr(source, "field", source)
+    field = scene_field(scene) if source is None else getattr(source, "field", source)
     if field is None:
         raise SeparationError("the scene's specimens hold different stress fields: give the field to separate")
     if not isinstance(field, StressField):

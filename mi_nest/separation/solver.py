@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.grid import grid_nodes
 from ..physics.tensors import stress_matrices
 from .surface import Surface
 
@@ -47,9 +48,7 @@ class Lattice:
 
     def nodes(self) -> np.ndarray:
         """``(nz * ny * nx, 3)`` node positions, x fastest (a stress grid's order)."""
-        x, y, z = self.axes()
-        zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
-        return np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=-1)
+        return grid_nodes(self.low, self.high, self.shape)
 
     def flat_index(self, points: np.ndarray) -> np.ndarray:
         """The flat index of the lattice node at each of ``points`` (which must be nodes)."""
