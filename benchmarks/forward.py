@@ -232,7 +232,7 @@ def scipy_lookup(grid, dtype):
 def numpy_render(field_eval, phase_rate, res, depth, steps, dtype):
     """The integrator's forward model, vectorised over all rays, one Python loop over steps.
 
-    Mirrors the integrator's ``product`` method (``mi_nest/integration/methods.py``) and its
+    Mirrors the integrator's ``product`` method (``mi_nest/tracer/methods.py``) and its
     outputs (``PhotoelasticIntegrator.outputs``): midpoint samples marching
     from the camera-side face away from the camera, each new step multiplied on the
     right, renormalised after every step.

@@ -67,13 +67,13 @@ def phases(scene, data, iterations, first, options):
     step = loop.Run.step
     wrapped = {}
 
-    def counted_step(self, integrator):
-        kind = type(integrator)
+    def counted_step(self, tracer):
+        kind = type(tracer)
         if kind not in wrapped:
             wrapped[kind] = (kind.trace_rays, kind.backpropagate_rays)
             kind.trace_rays = timed(totals, "trace_rays (primal)", kind.trace_rays, active)
             kind.backpropagate_rays = timed(totals, "backpropagate_rays (replay)", kind.backpropagate_rays, active)
-        result = timed(totals, "whole step", step, active)(self, integrator)
+        result = timed(totals, "whole step", step, active)(self, tracer)
         count[0] += 1
         return result
     try:
@@ -92,13 +92,13 @@ def kernels(scene, data, iterations, first, options):
     step = loop.Run.step
     timed_step = timed(totals, "wall", step, lambda: True)
 
-    def recorded_step(self, integrator):
+    def recorded_step(self, tracer):
         if count[0] < first:
             count[0] += 1
-            return step(self, integrator)
+            return step(self, tracer)
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         dr.kernel_history()
-        result = timed_step(self, integrator)
+        result = timed_step(self, tracer)
         history = dr.kernel_history()
         dr.set_flag(dr.JitFlag.KernelHistory, False)
         totals["execution"] += sum(k.get("execution_time", 0) for k in history) / 1000

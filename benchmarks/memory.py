@@ -40,8 +40,8 @@ def sampled_run(scene, data, iterations, every, options):
     samples = []
     own = loop.Run.step
 
-    def step(self, integrator):
-        value = own(self, integrator)
+    def step(self, tracer):
+        value = own(self, tracer)
         if (self.iteration + 1) % every == 0:
             samples.append((self.iteration + 1, resident_mib()))
         return value

@@ -21,7 +21,7 @@ from mi_nest.physics import MEASUREMENTS
 
 def loaded(name, res, method, step, **defines):
     scene = mi_nest.load_scene(name, res=res, spp=1, step=step, **defines)
-    scene.integrator().method = method
+    scene.integrator().configure(method=method)
     return scene
 
 
@@ -33,7 +33,7 @@ def timed_render(name, res, method, step, **defines):
         start = time.perf_counter()
         result = mi_nest.render(scene)
         best = min(best, time.perf_counter() - start)
-    return result.channels, best, scene.integrator()
+    return result.channels, best, scene.integrator().decide(scene)
 
 
 def error(channels, reference):
@@ -46,8 +46,8 @@ def commuting_disk(res):
     rows = []
     for label, method, step in (("product, 0.5 mm (default)", "product", 0.5), ("product, one step", "product", 6.0),
                                 ("linear, one step", "linear", 6.0), ("auto", "auto", 0.5)):
-        channels, seconds, integrator = timed_render("disk_compression", res, method, step)
-        rows.append((label, seconds, error(channels, reference), integrator.decision.step_size))
+        channels, seconds, decision = timed_render("disk_compression", res, method, step)
+        rows.append((label, seconds, error(channels, reference), decision.step_size))
     base = rows[0][1]
     print(f"\n1. commuting disk, {res}x{res} rays (error: 99th percentile of the 16 intensities)")
     print(f"{'method':28s} {'seconds':>8s} {'error':>9s} {'step mm':>8s} {'speed-up':>9s}")

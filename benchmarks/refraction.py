@@ -31,7 +31,7 @@ import numpy as np
 
 import mi_nest
 from mi_nest.dataset import SimulationSettings, simulate
-from mi_nest.integration.refraction import DEFAULT_MAX_BOUNCES
+from mi_nest.tracer.refraction import DEFAULT_MAX_BOUNCES
 
 from reconstruction import cpu_name
 
@@ -49,7 +49,7 @@ def render_round(scene, spp):
     result = mi_nest.render(scene, progress=False)
     seconds = time.perf_counter() - start
     steps = float(np.asarray(result.channels["path.length"], dtype=np.float64).sum()) * spp
-    return seconds, steps / scene.integrator().step_size
+    return seconds, steps / scene.integrator().tracer.config.step_size
 
 
 def reconstruction_rate(name, defines, data, iterations):

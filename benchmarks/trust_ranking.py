@@ -42,7 +42,7 @@ def rank(directory: Path) -> dict:
     scene = recorded_scene(source).load()
     truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
     start = time.perf_counter()
-    predictions = heldout_predictions(scene, dataset, result.field, result.integrator(scene),
+    predictions = heldout_predictions(scene, dataset, result.field, result.tracer(scene),
                                       result.config.reporting.evaluate_views)
     second_moment = None
     if (directory / "checkpoint.npz").is_file() and result.field.kind == "grid":

@@ -62,10 +62,10 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
     error_of = metrics.ErrorProbe(truth, points)
     best = metrics.fitted_nodes(field, truth, metrics.evaluation_points(scene, shapes, 3 * metrics.EVALUATION_POINTS))
     found = field.nodes()
-    integrator = result.integrator(scene)
+    tracer = result.tracer(scene)
     mask = result.config.optimiser.mask
-    train = SampledViewLoss(scene, dataset, integrator, mask, "train", views, samples)
-    test = SampledViewLoss(scene, dataset, integrator, mask, "test", views, samples)
+    train = SampledViewLoss(scene, dataset, tracer, mask, "train", views, samples)
+    test = SampledViewLoss(scene, dataset, tracer, mask, "test", views, samples)
     regulariser = result.config.regulariser
     rows = []
     for t in STEPS:

@@ -84,7 +84,7 @@ def truth_loss(name, data, res, model_defines):
     data at all (pixel centres against images averaged over each pixel)."""
     scene = mi_nest.load_scene(name, res=res, **model_defines)
     truth = specimen_shapes(scene)[0].interior_medium().field
-    return round(dataset_loss(scene, mi_nest.Dataset(data), truth, scene.integrator(), split="test"), 4)
+    return round(dataset_loss(scene, mi_nest.Dataset(data), truth, scene.integrator().tracer, split="test"), 4)
 
 
 def main():

@@ -53,7 +53,7 @@ def _render(case, method, points, step, res):
     rk4 at long steps), which the chart marks."""
     scene = load_scene(case.scene, res=res, spp=1, step=step, **case.defines)
     integrator = scene.integrator()
-    integrator.method, integrator.points = method, points or "midpoint"
+    integrator.configure(method=method, points=points or "midpoint")
     best, result = float("inf"), None
     with warnings.catch_warnings():
         # rk4 warns when it is not unitary; here that is the measurement itself.

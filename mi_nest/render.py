@@ -17,6 +17,7 @@ from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
 from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
+from .tracer import SCENE_VIEW, View
 from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -89,7 +90,7 @@ class RenderResult:
 
 
 def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, passes: int | None = None,
-           progress: bool = False, field: StressField | None = None) -> RenderResult:
+           progress: bool = False, field: StressField | None = None, view: View = SCENE_VIEW) -> RenderResult:
     """Render ``scene`` (a loaded scene, or a scene file or shipped scene name, loaded with its defaults) and
     return its named channels.
 
@@ -97,7 +98,8 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
     up to 16) so that ``progress=True`` can show a bar; every pass uses its own seed
     and the passes are averaged, which is exact for box-filtered films. ``field``,
     if given, is rendered in every specimen instead of its own stress (a
-    reconstruction's field).
+    reconstruction's field). ``view`` shows the specimens through another
+    polariscope and scales every phase (:func:`phase_scale`).
     """
     if isinstance(scene, (str, Path)):
         scene = load_scene(scene)
@@ -118,14 +120,14 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
     total = None
     # Every pass checks the same things (aliasing, rk4 norm): report each kind once, the last pass's. The bar
     # opens last, so a Ctrl-C while the scene is set up leaves no half-drawn bar before its one line.
-    with warnings.catch_warnings(record=True) as caught, integrator.deciding_once(scene, sensor, field), \
-            interrupts.deferred(), \
+    with warnings.catch_warnings(record=True) as caught, interrupts.deferred(), \
             tqdm(total=passes, desc="render", unit="pass", leave=False, disable=not progress) as bar:
         warnings.simplefilter("always")
+        decision = integrator.decide(scene, sensor, field, view)     # once for every pass
         for index in range(passes):
             interrupts.check()
             image, aliasing = integrator.render_with_aliasing(scene, sensor, seed * passes + index, spp // passes,
-                                                              field)
+                                                              field, view, decision)
             image = image.numpy()
             total = image if total is None else total + image
             bar.update()

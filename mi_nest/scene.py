@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from .plugins.polariscope import PolariscopeCamera
     from .plugins.polariscope_light import PolariscopeLight
     from .plugins.stress import StressMedium
+    from .tracer import Tracer
 
 
 class SceneError(ValueError):
@@ -164,6 +165,11 @@ def photoelastic_integrator(scene: mi.Scene) -> PhotoelasticIntegrator:
         raise SceneError(f'the scene\'s integrator is {integrator.class_name()}; mi_nest renders with '
                          '<integrator type="photoelastic">')
     return integrator
+
+
+def scene_tracer(scene: mi.Scene) -> Tracer:
+    """The tracer of the scene's ``photoelastic`` integrator (its properties as a :class:`TracerConfig`)."""
+    return photoelastic_integrator(scene).tracer
 
 
 def scene_sensor(scene: mi.Scene) -> mi.Sensor:

@@ -2,6 +2,8 @@ from __future__ import annotations
 
 import mitsuba as mi
 
+from mi_nest.tracer.parts import PolariscopeCameraPart
+
 from .properties import angle_property
 
 _PROJECTIONS = ("orthographic", "perspective")
@@ -82,4 +84,5 @@ class PolariscopeCamera(mi.Sensor):
                 f"analyzer={self.analyzer}]")
 
 
+PolariscopeCameraPart.register(PolariscopeCamera)
 mi.register_sensor("polariscope", lambda props: PolariscopeCamera(props))

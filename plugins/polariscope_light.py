@@ -4,6 +4,8 @@ import math
 
 import mitsuba as mi
 
+from mi_nest.tracer.parts import PolariscopeLightPart
+
 from .properties import angle_property
 
 
@@ -84,4 +86,5 @@ def _optional_length(props, name, default):
     return value
 
 
+PolariscopeLightPart.register(PolariscopeLight)
 mi.register_emitter("polariscope_light", lambda props: PolariscopeLight(props))

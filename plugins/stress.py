@@ -10,6 +10,7 @@ import numpy as np
 from mi_nest.fields import MODELS, FieldParameterError
 from mi_nest.fields.base import sample as sample_field
 from mi_nest.physics.tensors import Tensor, Vector
+from mi_nest.tracer.parts import StressMediumPart
 
 
 class StressMedium(mi.Medium):
@@ -59,7 +60,7 @@ class StressMedium(mi.Medium):
     step of length L is ``2 pi C L (sigma_1 - sigma_2) / lambda`` with no other
     factor. Occupancy is the shape itself. Only the ``photoelastic`` integrator
     reads this medium: it samples its ``field`` at ``phase_rate`` per mm
-    (``mi_nest.integration.setup``), or a field the caller passes in its place.
+    (``mi_nest.tracer.setup``), or a field the caller passes in its place.
 
     .. tabs::
 
@@ -169,4 +170,5 @@ def _parameter_value(model, parameter, value):
                          f"got {value!r}") from None
 
 
+StressMediumPart.register(StressMedium)
 mi.register_medium("stress", lambda props: StressMedium(props))

@@ -24,16 +24,24 @@ for module in graph.modules:
     for imported in graph.find_modules_directly_imported_by(module):
         if imported.startswith("mi_nest.") and room(module) and room(imported) != room(module):
             edges[room(module)].add(room(imported))
+modules = {m: sorted(i for i in graph.find_modules_directly_imported_by(m) if i.startswith("mi_nest."))
+           for m in graph.modules}
 print(json.dumps({"rooms": sorted({room(m) for m in graph.modules if room(m)}),
-                  "edges": {k: sorted(v) for k, v in edges.items()}}))
+                  "edges": {k: sorted(v) for k, v in edges.items()}, "modules": modules}))
 """
 
 
-def real_imports(tmp_path) -> tuple[list[str], dict[str, list[str]]]:
+def import_graph(tmp_path) -> dict:
+    """``rooms``, ``edges`` (room -> the rooms it imports) and ``modules`` (module -> the modules it imports,
+    ``TYPE_CHECKING`` imports included)."""
     result = subprocess.run([sys.executable, "-c", GRAPH], cwd=installed_layout(tmp_path), capture_output=True,
                             text=True, timeout=300)
     assert result.returncode == 0, result.stderr
-    graph = json.loads(result.stdout)
+    return json.loads(result.stdout)
+
+
+def real_imports(tmp_path) -> tuple[list[str], dict[str, list[str]]]:
+    graph = import_graph(tmp_path)
     return graph["rooms"], graph["edges"]
 
 
@@ -63,3 +71,29 @@ def test_the_architecture_table_names_what_each_room_imports(tmp_path):
                     "named, not imported": sorted(named - set(edges.get(room, ())))}
              for room, named in documented.items() if named != set(edges.get(room, ()))}
     assert not wrong, f"docs/architecture.md's imports column disagrees with the code: {wrong}"
+
+
+def import_circle(modules: dict[str, list[str]]) -> list[str] | None:
+    """A chain of imports that comes back to its first module, or None (depth-first search)."""
+    done, path = set(), []
+
+    def visit(module):
+        if module in path:
+            return path[path.index(module):] + [module]
+        if module in done:
+            return None
+        path.append(module)
+        for imported in modules.get(module, ()):
+            circle = visit(imported)
+            if circle:
+                return circle
+        path.pop()
+        done.add(module)
+        return None
+    return next((circle for circle in map(visit, sorted(modules)) if circle), None)
+
+
+def test_no_module_imports_itself_back(tmp_path):
+    assert import_circle({"a": ["b"], "b": ["c"], "c": ["a"]}) == ["a", "b", "c", "a"]     # the search finds one
+    assert import_circle({"a": ["b", "c"], "b": ["c"], "c": []}) is None
+    assert import_circle(import_graph(tmp_path)["modules"]) is None

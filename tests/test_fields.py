@@ -141,7 +141,7 @@ def test_grid_renders_the_same_through_the_projected_lookup(tmp_path, monkeypatc
     must give the general six-channel lookup's image. A perspective camera's rays differ in frame: no
     projection."""
     from scenes import scene
-    from mi_nest.integration.setup import SceneSetup
+    from mi_nest.tracer.setup import SceneSetup
     disk = DiskCompressionField(diameter=24.0, thickness=6.0, load=150.0, contact_width=4.0)
     grid, _ = sampled_grid(disk, shape=(12, 17, 15), bbox_min=(-10, -10, -3), bbox_max=(10, 10, 3))
     save_stress_grid(tmp_path / "disk.npz", grid)

@@ -11,6 +11,7 @@ import pytest
 
 from mi_nest.physics import jones
 from mi_nest.reconstruct.fields import FieldConfig, make_field
+from mi_nest.tracer import PathKind, Tracer, TracerConfig
 from scenes import box, scene
 
 # Stress that gives about a radian per mm of path: a few radians across the 4 mm box, so the
@@ -66,29 +67,28 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
 
 def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest):
     """The replayed gradient of ``loss(jones)`` over ``rays`` against central differences: the gradients, how
-    many entries were checked, and the traced state."""
+    many entries were checked, and the traced rays."""
     right = mi.Vector3f(1, 0, 0)
 
     def value(parameters):
         field.assign(parameters)
         with dr.suspend_grad():
-            state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
-            return float(loss(integrator.jones(state, blocked))[0])
+            return float(loss(integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field).jones())[0])
 
     base = {name: type(v)(np.array(v)) for name, v in field.parameters().items()}
     variables = {name: type(v)(v) for name, v in base.items()}
     for v in variables.values():
         dr.enable_grad(v)
     field.assign(variables)
-    state, blocked, _ = integrator.trace_rays(loaded, rays, right, seed=5, field=field)
+    traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field)
     with dr.resume_grad():
-        leaf = tuple(mi.Float(x) for x in state)
+        leaf = tuple(mi.Float(x) for x in traced.state)
         dr.enable_grad(leaf)
-        dr.backward(loss(integrator.jones(leaf, blocked)))
+        dr.backward(loss(traced.jones(leaf)))
         state_grad = dr.grad(leaf)
-    integrator.backpropagate_rays(loaded, rays, right, state, state_grad, seed=5, field=field)
+    integrator.tracer.backpropagate_rays(loaded, rays, right, traced, state_grad, seed=5, field=field)
     gradients = {name: np.array(dr.grad(v)).ravel() for name, v in variables.items()}
-    return gradients, _matches_finite_differences(value, base, gradients, largest), state
+    return gradients, _matches_finite_differences(value, base, gradients, largest), traced
 
 
 def _matches_finite_differences(value, base, gradients, largest):
@@ -152,12 +152,12 @@ def test_render_backward_matches_finite_differences(tmp_path):
 def test_rk4_has_no_adjoint_and_auto_needs_one_camera():
     loaded = _specimen()
     rays, _ = _batch()
-    rk4 = mi.load_dict({"type": "photoelastic", "method": "rk4"})
-    state, blocked, _ = rk4.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
+    rk4 = Tracer(TracerConfig(method="rk4"))
+    traced = rk4.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
     with pytest.raises(ValueError, match="not unitary"):
-        rk4.backpropagate_rays(loaded, rays, mi.Vector3f(1, 0, 0), state, state)
+        rk4.backpropagate_rays(loaded, rays, mi.Vector3f(1, 0, 0), traced, traced.state)
     with pytest.raises(ValueError, match="explicit method"):
-        mi.load_dict({"type": "photoelastic", "method": "auto"}).trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
+        Tracer(TracerConfig(method="auto")).trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
 
 
 @pytest.mark.parametrize("method", ["product", "magnus4"])
@@ -179,8 +179,8 @@ def test_replayed_gradient_through_refracting_surfaces_matches_finite_difference
     def loss(matrix):
         return sum(dr.sum(w * x) for w, x in zip(weights, intensities(matrix)))
 
-    gradients, checked, state = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
-    assert checked == 6 and len(state) == 8          # the path's general Jones matrix
+    gradients, checked, traced = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
+    assert checked == 6 and traced.kind is PathKind.REFRACTED and len(traced.state) == 8     # a general Jones matrix
     assert np.abs(gradients["grid"]).max() > 1e-3
 
 
@@ -204,9 +204,10 @@ def test_replayed_gradient_of_the_ghosts_matches_finite_differences(part):
         assert isinstance(matrix, jones.Incoherent)
         return sum(dr.sum(w * x) for w, x in zip(weights, intensities(matrix[1] if part == "ghost" else matrix)))
 
-    gradients, checked, state = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
-    assert checked == 6 and len(state) == 16        # the transmitted path's and the ghost's Jones matrices
-    ghost = np.array(state[8:])
+    gradients, checked, traced = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=6)
+    # The transmitted path's and the ghost's Jones matrices.
+    assert checked == 6 and traced.kind is PathKind.GHOSTED and len(traced.state) == 16
+    ghost = np.array(traced.state[8:])
     assert 0 < np.count_nonzero(np.abs(ghost).sum(axis=0)) < RAYS     # some rays took a partial reflection
     assert np.abs(gradients["grid"]).max() > 1e-4
 
@@ -215,8 +216,9 @@ def test_linear_gradients_through_refracting_surfaces_are_refused():
     glass = {**box((4, 4, 4), interior={"type": "stress", "model": "uniform", "stress_optic_coefficient": 50.0}),
              "bsdf": {"type": "dielectric", "int_ior": 1.55, "ext_ior": 1.0}}
     loaded = scene([glass], res=2, view=2.5)
-    integrator = mi.load_dict({"type": "photoelastic", "method": "linear", "step_size": 0.4})
+    tracer = Tracer(TracerConfig(method="linear", step_size=0.4))
     rays, _ = _batch()
-    state, blocked, _ = integrator.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
+    traced = tracer.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0))
     with pytest.raises(ValueError, match="gradients through refracting surfaces need 'product' or 'magnus4'"):
-        integrator.backpropagate_rays(loaded, rays, mi.Vector3f(1, 0, 0), state, tuple(mi.Float(0) for _ in state))
+        tracer.backpropagate_rays(loaded, rays, mi.Vector3f(1, 0, 0), traced,
+                                  tuple(mi.Float(0) for _ in traced.state))

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from mi_nest.integration import auto
-from mi_nest.integration.setup import SceneSetup
+from mi_nest.tracer import auto
+from mi_nest.tracer.setup import SceneSetup
 from mi_nest.physics import MEASUREMENTS, su2
 from scenes import BREWSTER, WAVELENGTH, box, medium, render
 from test_render import twisted_closed_form
@@ -105,7 +105,7 @@ def _auto(shapes, tolerance, **options):
     from scenes import scene
     scene_ = scene(shapes, method="auto", tolerance=tolerance, **options)
     channels = mi_nest.render(scene_).channels
-    decision = scene_.integrator().decision
+    decision = scene_.integrator().decide(scene_)
     return channels, decision.method.name, decision.step_size, decision.reason
 
 
@@ -133,10 +133,11 @@ def test_auto_analyses_once_for_all_passes_of_a_render(monkeypatch):
     scene_ = scene([box((30, 30, DEPTH), interior=field)], res=2, spp=4, method="auto", tolerance=1e-3)
     integrator = scene_.integrator()
     mi_nest.render(scene_, passes=4)
-    assert len(analyses) == 1 and integrator.method == "auto" and integrator._decided is None
-    decided = (integrator.decision.method.name, integrator.decision.step_size)
+    assert len(analyses) == 1 and integrator.tracer.config.method == "auto"
     mi.render(scene_)   # outside a render's passes every render analyses its scene again
-    assert len(analyses) == 2 and (integrator.decision.method.name, integrator.decision.step_size) == decided
+    assert len(analyses) == 2
+    decision = integrator.decide(scene_)
+    assert len(analyses) == 3 and decision.method.name == "magnus4" and decision.reason
 
 
 def test_auto_samples_the_generator_the_numpy_projection_gives():
@@ -173,16 +174,17 @@ def test_auto_meets_its_tolerance_where_axes_turn(tolerance):
 def test_auto_never_picks_the_linear_model_for_stacked_disks():
     import mi_nest
     scene_ = mi_nest.load_scene("stacked_disks", res=8, spp=1)
-    scene_.integrator().method = "auto"
+    integrator = scene_.integrator()
+    integrator.configure(method="auto")
     mi_nest.render(scene_)
-    assert scene_.integrator().decision.method.name == "magnus4"
+    assert integrator.decide(scene_).method.name == "magnus4"
 
 
 @pytest.mark.parametrize("method", ["product", "magnus4"])
 def test_numpy_chords_march_as_the_render_does(method):
     """The ``auto`` analysis marches NumPy chords with the integrator's own method objects."""
     import mi_nest
-    from mi_nest.integration import methods
+    from mi_nest.tracer.registry import method_named
     from scenes import scene
     steps = 8
     field = medium("twisted", origin=[0, 0, -0.5 * DEPTH], **TWIST)
@@ -192,7 +194,7 @@ def test_numpy_chords_march_as_the_render_does(method):
     u, v = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])     # image right and up; the light runs along +z
     generator = auto.generator_field(setup.phase_tensors[0], u, v)
     starts = np.array([[0.0, 0.0, 0.5 * DEPTH], [3.0, -2.0, 0.5 * DEPTH]])
-    marched = methods.from_properties(method, "midpoint", False, 1e-3).march_chords(
+    marched = method_named(method).march_chords(
         generator, starts, np.array([0.0, 0.0, -1.0]), np.full(2, DEPTH), DEPTH / steps * (1 + 1e-6))
     for c, value in zip("abcd", marched):
         np.testing.assert_allclose(channels[f"jones.{c}"], value[0], atol=2e-6)

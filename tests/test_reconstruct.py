@@ -20,6 +20,7 @@ from mi_nest.reconstruct.evaluation import dataset_loss
 from mi_nest.reconstruct.fields import (DEFAULT_RESOLUTIONS, MIN_NODES_ACROSS, choose_kind, default_resolution,
                                        grid_shape, refined, settle)
 from mi_nest.scene import specimen_bounds, specimen_shapes
+from mi_nest.tracer import Tracer, TracerConfig
 from scenes import TINY
 
 FAST = dict(iterations=3, batch_size=64, views_per_batch=3, learning_rate=0.1, resolution=6, evaluate_views=1,
@@ -179,14 +180,15 @@ def test_the_finest_stage_takes_its_share_and_its_own_rays_per_pixel(tiny_datase
 
 
 def test_a_stage_marches_steps_of_half_its_own_grid_spacing(tiny_dataset):
-    from mi_nest.reconstruct.forward import make_integrator
+    from mi_nest.reconstruct.forward import forward_step, make_tracer
     config = OptimizeConfig(field=FieldConfig(kind="grid", resolution=33))
     scene = _scene()
     for resolution in (9, 17, 33):
         field = make_field(FieldConfig(kind="grid", resolution=resolution), (0, 0, 0), (32, 16, 8), 1.0)
-        assert f"step_size={0.5 * 32 / (resolution - 1):g}" in str(make_integrator(config, field, scene))
+        assert forward_step(config, field) == pytest.approx(0.5 * 32 / (resolution - 1))
+        assert make_tracer(config, field, scene).config.step_size == forward_step(config, field)
     given = OptimizeConfig(field=FieldConfig(kind="grid", resolution=33), step_size=0.25)
-    assert "step_size=0.25" in str(make_integrator(given, field, scene))
+    assert make_tracer(given, field, scene).config.step_size == 0.25
 
 
 def _assign_ramp_along_x(field, slope):
@@ -381,8 +383,8 @@ def test_three_iterations_reduce_the_loss(tiny_dataset, tmp_path):
                           track_error_every=1, **FAST)
     dataset = mi_nest.Dataset(tiny_dataset)
     start = make_field(result.field.config, result.field.bbox_min, result.field.bbox_max, result.field.stress_scale)
-    integrator = mi.load_dict({"type": "photoelastic", "step_size": 1.0})
-    assert dataset_loss(scene, dataset, result.field, integrator) < dataset_loss(scene, dataset, start, integrator)
+    tracer = Tracer(TracerConfig(step_size=1.0))
+    assert dataset_loss(scene, dataset, result.field, tracer) < dataset_loss(scene, dataset, start, tracer)
     assert len(result.history) == 3 and np.isfinite(result.metrics["deviatoric_error"])
     # The error followed during the run ends where the final evaluation finds it.
     assert result.history[-1]["deviatoric_error"] == pytest.approx(result.metrics["deviatoric_error"], rel=1e-6)

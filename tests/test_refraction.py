@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 import mi_nest
-from mi_nest.integration.guards import SceneSetupError
 from mi_nest.physics import MEASUREMENTS, interface, jones
+from mi_nest.tracer import PathKind
+from mi_nest.tracer.guards import SceneSetupError
 from test_independent_renderer import mitsuba_stack
 
 REFERENCE_SCRIPT = Path(__file__).with_name("polarized_reference.py")
@@ -89,7 +90,7 @@ def test_a_tilted_slab_shifts_the_ray_sideways_and_keeps_its_direction():
     scene = _scene(_slab(N, tilt, stress={}, half_width=30.0))
     offsets = np.linspace(-3, 3, 7)
     rays = mi.Ray3f(mi.Point3f(0.0, mi.Float(offsets), 100.0), mi.Vector3f(0, 0, -1))
-    path = scene.integrator().trace_refracted(scene, rays)
+    path = scene.integrator().tracer.trace_refracted(scene, rays)
     direction = np.array(path.exit_direction)
     np.testing.assert_allclose(direction, [[0] * 7, [0] * 7, [-1] * 7], atol=1e-6)
     # The exit line's distance from the entry line: t sin(i - t) / cos(t).
@@ -108,7 +109,7 @@ def test_a_glass_sphere_bends_rays_as_an_analytic_snell_trace():
     scene = _scene(sphere)
     heights = np.linspace(0.2, 4.8, 12)
     rays = mi.Ray3f(mi.Point3f(mi.Float(heights), 0.0, 100.0), mi.Vector3f(0, 0, -1))
-    path = scene.integrator().trace_refracted(scene, rays)
+    path = scene.integrator().tracer.trace_refracted(scene, rays)
     i = np.arcsin(heights / radius)
     t = np.arcsin(np.sin(i) / N)
     inside = np.stack([-np.sin(i - t), 0 * i, -np.cos(i - t)])
@@ -131,12 +132,12 @@ def test_total_internal_reflection_is_followed_without_nan_and_within_max_crossi
     paths = {}
     for limit in (2, 64):
         scene = _scene(cube, size=32)
-        scene.integrator().max_crossings = limit
+        scene.integrator().configure(max_crossings=limit)
         channels = _channels(scene)
         for name, image in channels.items():
             assert np.all(np.isfinite(image)), name
         assert 0.0 <= channels["Y"].min() and channels["Y"].max() <= 1.0 + 1e-5
-        paths[limit] = scene.integrator().trace_refracted(scene, rays)
+        paths[limit] = scene.integrator().tracer.trace_refracted(scene, rays)
         assert np.array(paths[limit].interfaces).max() <= limit
     # A ray sent back towards the camera's side by its reflections never meets the panel behind the specimens.
     backwards = np.array(paths[64].exit_direction)[2] >= 0
@@ -152,11 +153,11 @@ def test_total_internal_reflection_is_followed_without_nan_and_within_max_crossi
     # Partial reflections on top: each sampled path takes at most max_bounces of them, total reflections
     # (not a choice: the only way on) aside; everything stays finite and within max_crossings.
     scene = _scene(cube, size=32, sensor={"sampler": {"type": "independent", "sample_count": 16}})
-    scene.integrator().max_bounces = 3
+    scene.integrator().configure(max_bounces=3)
     channels = _channels(scene)
     assert all(np.all(np.isfinite(image)) for image in channels.values())
     for seed in range(4):
-        sampled = scene.integrator().trace_refracted(scene, rays, seed=seed, bounces=3)
+        sampled = scene.integrator().tracer.trace_refracted(scene, rays, seed=seed, bounces=3)
         taken, crossed = np.array(sampled.reflections), np.array(sampled.interfaces)
         assert taken.max() <= 3 and crossed.max() <= 64 and np.all(np.isfinite(np.array(sampled.jones[0])))
     assert taken.max() >= 1
@@ -167,7 +168,7 @@ def test_total_reflection_keeps_the_light_whole():
     matrix keeps the product of the two transmissions as its only loss."""
     scene = _scene(_slab(N, 45.0, stress={}, half_thickness=3.0, half_width=3.0), size=32)
     rays = mi.Ray3f(mi.Point3f(0.0, mi.Float(np.linspace(-3.9, 3.9, 200)), 100.0), mi.Vector3f(0, 0, -1))
-    path = scene.integrator().trace_refracted(scene, rays)
+    path = scene.integrator().tracer.trace_refracted(scene, rays)
     reflected = np.array(path.interfaces) == 3
     assert reflected.any()
     # Inside, the march goes on past the reflection: unfolded by the mirror, every chord crosses the square
@@ -211,12 +212,12 @@ def test_bad_interfaces_are_refused_with_one_line():
 
 
 def test_max_bounces_defaults_to_the_measured_value_everywhere_and_refuses_a_negative_count():
-    from mi_nest.integration.refraction import DEFAULT_MAX_BOUNCES
+    from mi_nest.tracer.refraction import DEFAULT_MAX_BOUNCES
     from mi_nest.scene import SceneError
-    assert mi.load_dict({"type": "photoelastic"}).max_bounces == DEFAULT_MAX_BOUNCES
+    assert mi.load_dict({"type": "photoelastic"}).tracer.config.max_bounces == DEFAULT_MAX_BOUNCES
     for name in ("disk_compression", "kitten"):
-        assert mi_nest.load_scene(name, res=8).integrator().max_bounces == DEFAULT_MAX_BOUNCES
-    assert mi_nest.load_scene("disk_compression", res=8, max_bounces=1).integrator().max_bounces == 1
+        assert mi_nest.load_scene(name, res=8).integrator().tracer.config.max_bounces == DEFAULT_MAX_BOUNCES
+    assert mi_nest.load_scene("disk_compression", res=8, max_bounces=1).integrator().tracer.config.max_bounces == 1
     with pytest.raises(SceneError, match="'max_bounces' must be 0 or more, got -1") as refused:
         mi_nest.load_scene("disk_compression", res=8, max_bounces=-1)
     assert "Traceback" not in str(refused.value) and "\n" not in str(refused.value)
@@ -258,7 +259,7 @@ def test_a_tilted_glass_block_matches_mitsubas_polarised_dielectric(tmp_path):
     transmitted = _channels(_scene(_slab(N, tilt, stress={}, half_width=30.0)))
     with_ghosts = _scene(_slab(N, tilt, stress={}, half_width=30.0),
                          sensor={"sampler": {"type": "independent", "sample_count": 512}})
-    with_ghosts.integrator().max_bounces = 4
+    with_ghosts.integrator().configure(max_bounces=4)
     index_matched = _channels(_scene(_slab(None, tilt, stress={}, half_width=30.0)))
     errors = worst(transmitted), worst(_channels(with_ghosts)), worst(index_matched)
     assert errors[0] < 0.006 and errors[1] < 0.0006 and errors[2] > 0.05, errors
@@ -305,23 +306,23 @@ def test_simulate_renders_the_bent_paths_and_reconstruction_traces_the_same(tmp_
     assert ghosts > 2e-3, ghosts
     scene = mi_nest.load_scene(with_ghosts.index["source"]["scene"], **with_ghosts.index["source"]["defines"])
     rays = mi.Ray3f(mi.Point3f(0.0, mi.Float(np.linspace(-15, 15, 8)), 100.0), mi.Vector3f(0, 0, -1))
-    state, _, _ = scene.integrator().trace_rays(scene, rays, mi.Vector3f(1, 0, 0))
-    assert len(state) == 16         # the transmitted path's Jones matrix and a ghost's
+    traced = scene.integrator().tracer.trace_rays(scene, rays, mi.Vector3f(1, 0, 0))
+    assert traced.kind is PathKind.GHOSTED and len(traced.state) == 16  # the transmitted path's and a ghost's
     losses = {}
     for label, indices in (("refracted", {}), ("straight", {"ior": 1.0})):
         scene = mi_nest.load_scene("disk_compression", **{**transmitted.index["source"]["defines"], **indices})
         truth = specimen_shapes(scene)[0].interior_medium().field
-        losses[label] = dataset_loss(scene, transmitted, truth, scene.integrator(), split="train", mask=None)
+        losses[label] = dataset_loss(scene, transmitted, truth, scene.integrator().tracer, split="train", mask=None)
     assert losses["straight"] > 2.5 * losses["refracted"], losses
     # The reconstruction renders with the scene integrator's surface settings: a dataset simulated with ghosts
     # is fitted with them, one without, without.
     for bounces in (0, 2):
         scene = mi_nest.load_scene("disk_compression", **{**transmitted.index["source"]["defines"],
                                                           "max_bounces": bounces})
-        scene.integrator().max_crossings = 16
+        scene.integrator().configure(max_crossings=16)
         result = mi_nest.optimize(scene, transmitted, iterations=2, kind="grid", resolution=8, progress=False)
-        integrator = result.integrator(scene)
-        assert (integrator.max_bounces, integrator.max_crossings) == (bounces, 16)
+        config = result.tracer(scene).config
+        assert (config.max_bounces, config.max_crossings) == (bounces, 16)
 
 
 def test_rays_bent_past_a_finite_panel_bring_no_light():
@@ -340,7 +341,7 @@ def test_rays_bent_past_a_finite_panel_bring_no_light():
     size = 2 * float(np.median(np.abs(on_panel)))
     scene = _scene(sphere, light={"size": size, "distance": distance})
     rays = mi.Ray3f(mi.Point3f(mi.Float(heights), 0.0, 100.0), mi.Vector3f(0, 0, -1))
-    path = scene.integrator().trace_refracted(scene, rays)
+    path = scene.integrator().tracer.trace_refracted(scene, rays)
     missed = np.abs(on_panel) > size / 2
     assert 4 <= missed.sum() <= 20
     np.testing.assert_array_equal(np.array(path.blocked), missed)
@@ -398,7 +399,7 @@ def _with_bounces(slab, bounces, spp=4096, **elements):
     """The slab's channels with ``max_bounces``, ``spp`` independent samples per pixel."""
     scene = _scene(slab, sensor={"sampler": {"type": "independent", "sample_count": spp}, **elements.pop("sensor", {})},
                    **elements)
-    scene.integrator().max_bounces = bounces
+    scene.integrator().configure(max_bounces=bounces)
     return _channels(scene)
 
 
@@ -520,7 +521,7 @@ def test_the_light_sheets_turn_by_the_geometric_rotation_of_a_path_that_leaves_i
     rng = np.random.default_rng(3)
     starts = np.stack([rng.uniform(-4, 4, 200), rng.uniform(-4, 4, 200), np.full(200, 100.0)])
     rays = mi.Ray3f(mi.Point3f(starts.astype(np.float32)), mi.Vector3f(0, 0, -1))
-    path = scene.integrator().trace_refracted(scene, rays)
+    path = scene.integrator().tracer.trace_refracted(scene, rays)
     rotation, crossed = np.array(path.sheet_rotation), np.array(path.interfaces)
     expected, measured, planar = [], [], []
     for index in range(200):

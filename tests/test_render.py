@@ -8,7 +8,7 @@ import trimesh
 
 import mi_nest
 from mi_nest.fields import DiskCompressionField
-from mi_nest.integration.film import CHANNELS
+from mi_nest.tracer.film import CHANNELS
 from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.polariscope import rotation
 from scenes import BREWSTER, WAVELENGTH, box, medium, render, scene
@@ -221,7 +221,7 @@ def test_direct_pixel_sums_match_mitsubas_film_splatting(spp, pixel_format):
     held = np.array(film.bitmap(), copy=True)
     held_sums = np.array(film.develop(raw=True), copy=True)
     names = integrator.channel_names(film)
-    with integrator._prepared(scene_, scene_.sensors()[0]):
+    with integrator._planned(scene_, scene_.sensors()[0]):
         generic = np.array(mi.ad.integrators.common.ADIntegrator.render(integrator, scene_, seed=3))
     np.testing.assert_allclose(held_sums, np.array(film.develop(raw=True)), atol=1e-5)
     alpha = pixel_format.endswith("alpha")
@@ -233,7 +233,7 @@ def test_direct_pixel_sums_match_mitsubas_film_splatting(spp, pixel_format):
 
 
 def test_check_scene_names_what_mi_render_reports_only_as_a_failed_operation():
-    from mi_nest.integration.guards import SceneSetupError
+    from mi_nest.tracer.guards import SceneSetupError
     loaded = scene([box((2, 2, 2))])        # no stress medium inside
     with pytest.raises(Exception):
         mi.render(loaded)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 import mi_nest
-from mi_nest.integration.film import CHANNELS
+from mi_nest.tracer.film import CHANNELS
 
 SHIPPED = sorted(p.stem for p in mi_nest.scene_path("disk_compression").parent.glob("*.xml"))
 # Scenes that take more than a second or two to load or render at 16x16.

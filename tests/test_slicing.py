@@ -132,9 +132,9 @@ def test_the_regions_jones_products_in_the_lights_order_are_the_walks_product(st
     count = len(points)
     rays = mi.Ray3f(mi.Point3f(*(points + [0, 0, 50]).T.astype(np.float32)),
                     mi.Vector3f(*np.tile([0.0, 0.0, -1.0], (count, 1)).T.astype(np.float32)))
-    integrator = photoelastic_integrator(stacked)
-    state, blocked, _ = integrator.trace_rays(stacked, rays, mi.Vector3f(*np.tile([1.0, 0, 0], (count, 1)).T))
-    walked = [np.array(x).reshape(inside.shape) for x in integrator.jones(state, blocked)]
+    traced = photoelastic_integrator(stacked).tracer.trace_rays(stacked, rays,
+                                                                mi.Vector3f(*np.tile([1.0, 0, 0], (count, 1)).T))
+    walked = [np.array(x).reshape(inside.shape) for x in traced.jones()]
     # Float32 points a few micrometres apart: near the point loads the stress changes too fast for 1e-4.
     keep = inside & away_from_loads(points.reshape(*inside.shape, 3), fraction=0.9)
     assert max(np.abs(p - w)[keep].max() for p, w in zip(walked, jones(whole))) < 1e-4

@@ -56,7 +56,7 @@ def test_rays_from_one_rotation_axis_span_a_plane_and_two_axes_do_not(one_axis_a
         scene = mi_nest.load_scene("disk_compression", res=16, load=20)
         result = optimize(scene, dataset, progress=False, iterations=2, batch_size=64, resolution=8,
                           evaluate_views=1)
-        predictions = heldout_predictions(scene, dataset, result.field, result.integrator(scene), 1)
+        predictions = heldout_predictions(scene, dataset, result.field, result.tracer(scene), 1)
         trust = trust_map(scene, dataset, result.field, predictions)
         seen = trust.coverage > 0
         assert 0 <= trust.coverage.min() and trust.coverage.max() <= 1

@@ -134,26 +134,26 @@ def test_two_step_reconstruction_fits_the_unwrapped_data(small_disk):
     losses = [h["loss"] for h in result.history]
     assert np.mean(losses[-10:]) < 0.4 * np.mean(losses[:5])
     assert result.metrics["deviatoric_error"] < 1.0
-    assert result.integrator(scene).method == "linear"
+    assert result.tracer(scene).config.method == "linear"
 
 
 def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(small_disk, monkeypatch):
     from mi_nest.reconstruct import loop
     data, scene = small_disk
     models = []
-    original = loop.make_integrator
+    original = loop.make_tracer
 
     def recording(config, field, scene_, method=None):
-        integrator = original(config, field, scene_, method)
-        models.append(integrator.method)
-        return integrator
+        tracer = original(config, field, scene_, method)
+        models.append(tracer.config.method)
+        return tracer
 
-    monkeypatch.setattr(loop, "make_integrator", recording)     # a spy: the real integrators run
+    monkeypatch.setattr(loop, "make_tracer", recording)     # a spy: the real tracers run
     result = optimize(scene, data, progress=False, warm_start=0.5, kind="grid", resolution=8, iterations=40,
                       batch_size=256, views_per_batch=3, learning_rate=0.1, pixel_samples=1, evaluate_views=1,
                       coarse_to_fine=False)
     assert models[:2] == ["linear", "product"]        # the Two-step fit, then the joint one
-    assert np.isfinite(result.metrics["deviatoric_error"]) and result.integrator(scene).method == "product"
+    assert np.isfinite(result.metrics["deviatoric_error"]) and result.tracer(scene).config.method == "product"
     with pytest.raises(ValueError, match="warm_start"):
         optimize(scene, data, progress=False, method="two-step", warm_start=0.3)
     with pytest.raises(ValueError, match="warm_start"):

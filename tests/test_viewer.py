@@ -16,7 +16,8 @@ from mi_nest.cli import main
 from mi_nest.inside.page_probe import PAGE_PROBE
 from mi_nest.inside.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
 from mi_nest.physics.polariscope import polariscope_setting
-from mi_nest.scene import photoelastic_integrator, pose
+from mi_nest.scene import pose
+from mi_nest.tracer import View
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 # What the machine's closed network needs (docs in the workplace's env notes): no background connections.
@@ -49,9 +50,8 @@ def _direct(frame):
     pose(scene, frame.to_world)
     state = frame.state
     scale = state.load_scale * 532.0 / state.wavelength
-    with photoelastic_integrator(scene).looking_through(polariscope_setting(state.polariscope, state.field,
-                                                                            state.angle), scale):
-        image = mi_nest.render(scene, spp=1, seed=0).main
+    view = View(polariscope_setting(state.polariscope, state.field, state.angle), scale)
+    image = mi_nest.render(scene, spp=1, seed=0, view=view).main
     return to_rgb(image)[..., 0].astype(int)
 
 

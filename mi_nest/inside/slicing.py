@@ -28,6 +28,7 @@ from ..arrays import device_array
 from ..physics.polariscope import Polariscope, polariscope_setting
 from ..render import RenderResult, check_light_and_load, phase_scale, require_memory
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
+from ..tracer import View
 from ..version import __version__
 
 AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
@@ -278,16 +279,15 @@ class Slicer:
         if not np.isfinite(begin).any():
             raise SliceError(_empty_message(scene, spec))
         integrator = photoelastic_integrator(scene)
+        view = View(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength))
         count = len(lines.starts)
         chords = [(device_array(mi.Float, b), device_array(mi.Float, e), device_array(mi.UInt32, m, np.uint32))
                   for b, e, m in zip(np.where(np.isfinite(begin), begin, 0.0), np.where(np.isfinite(end), end, 0.0),
                                      medium)]
-        with integrator.looking_through(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength)):
-            main, aovs, fringe = integrator.trace_chords(
-                scene, device_array(mi.Point3f, lines.starts.T),
-                device_array(mi.Vector3f, np.tile(lines.d, (count, 1)).T), chords,
-                device_array(mi.Vector3f, np.tile(image.right, (count, 1)).T),
-                step_size=spec.thickness / STEPS_PER_THICKNESS, field=field)
+        main, aovs, fringe = integrator.tracer.trace_chords(
+            scene, device_array(mi.Point3f, lines.starts.T), device_array(mi.Vector3f, np.tile(lines.d, (count, 1)).T),
+            chords, device_array(mi.Vector3f, np.tile(image.right, (count, 1)).T),
+            step_size=spec.thickness / STEPS_PER_THICKNESS, field=field, view=view)
         shape = (image.height, image.width)
         channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
         for name, value in zip(integrator.aov_names(), aovs):

@@ -21,7 +21,8 @@ from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope
 from ..reconstruct.evaluation import view_psnr
 from ..render import RenderResult, phase_scale, render
-from ..scene import photoelastic_integrator, pose
+from ..scene import pose
+from ..tracer import View
 from .plots import pyplot, save_figure
 from .source import ViewSource
 
@@ -54,8 +55,8 @@ def render_pose(source: ViewSource, to_world: np.ndarray, polariscope: Polarisco
     the viewer renders where a drag left the camera."""
     pose(source.scene, to_world)
     scale = phase_scale(source.scene, load_scale, wavelength)
-    with photoelastic_integrator(source.scene).looking_through(polariscope, scale):
-        result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field)
+    result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field,
+                    view=View(polariscope, scale))
     result.metadata["mi_nest.source"] = source.name
     return result
 

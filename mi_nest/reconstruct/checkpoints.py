@@ -15,9 +15,10 @@ from ..dataset import Dataset
 from ..io.atomic import atomic_path
 from ..physics.aliasing import UNRESOLVED_SHARE
 from ..render import RenderResult, render
+from ..tracer import Tracer
 from .config import OptimizeConfig
 from .fields import TrainableField, field_from_state
-from .forward import make_integrator
+from .forward import make_tracer
 
 CHECKPOINT = "checkpoint.npz"
 # What every checkpoint holds; one without them was cut short or is not a checkpoint.
@@ -198,9 +199,9 @@ class Reconstruction:
             stress_field = load_field(directory / "field.npz")
         return cls(stress_field, config, history, metrics, seconds, record.get("source", {}))
 
-    def integrator(self, scene: mi.Scene) -> mi.Integrator:
-        """The integrator this reconstruction renders ``scene`` with."""
-        return make_integrator(self.config, self.field, scene)
+    def tracer(self, scene: mi.Scene) -> Tracer:
+        """The tracer this reconstruction renders ``scene`` with."""
+        return make_tracer(self.config, self.field, scene)
 
     def render(self, scene: mi.Scene, **options) -> RenderResult:
         """Render ``scene`` with this field in place of its specimens' stress (see ``mi_nest.render``)."""

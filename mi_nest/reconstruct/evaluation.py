@@ -7,19 +7,20 @@ import numpy as np
 from ..dataset import Dataset
 from ..fields.base import StressField
 from ..physics import MEASUREMENTS
+from ..tracer import Tracer
 from . import metrics
 from .losses import intensities
 from .rays import ViewRays, stratified
 
 
-def predict_view(scene: mi.Scene, view_rays: ViewRays, integrator: mi.Integrator, position: int,
+def predict_view(scene: mi.Scene, view_rays: ViewRays, tracer: Tracer, position: int,
                  stress_field: StressField) -> np.ndarray:
     """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with ``stress_field`` in the
     specimens, through the polariscopes the dataset was measured with."""
     rays, right = view_rays.view(position)
-    state, blocked, _ = integrator.trace_rays(scene, rays, right, field=stress_field)
+    traced = tracer.trace_rays(scene, rays, right, field=stress_field)
     scopes = view_rays.dataset.polariscopes()
-    return np.stack([np.array(c) for c in intensities(integrator.jones(state, blocked), scopes)], axis=-1)
+    return np.stack([np.array(c) for c in intensities(traced.jones(), scopes)], axis=-1)
 
 
 def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray | None:
@@ -36,14 +37,14 @@ def view_psnr(predicted: np.ndarray, dataset: Dataset, position: int, mask: str 
     return metrics.psnr(predicted, measured, view_mask(dataset, position, mask))
 
 
-def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
+def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, tracer: Tracer,
                  split: str = "train",
                  mask: str | None = "mask.dolp") -> float:
     """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
     view_rays = ViewRays(scene, dataset)
     total = count = 0.0
     for position in dataset.split(split):
-        error = np.abs(predict_view(scene, view_rays, integrator, position, stress_field)
+        error = np.abs(predict_view(scene, view_rays, tracer, position, stress_field)
                        - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
         inside = view_mask(dataset, position, mask)
         if inside is not None:
@@ -59,11 +60,11 @@ class SampledViewLoss:
     field scored (as the camera integrates, and the finest stage fits: at pixel centres the aliased pixels miss
     every field alike, and hide what tells fields apart)."""
 
-    def __init__(self, scene: mi.Scene, dataset: Dataset, integrator: mi.Integrator, mask: str | None, split: str,
+    def __init__(self, scene: mi.Scene, dataset: Dataset, tracer: Tracer, mask: str | None, split: str,
                  views: int, samples: int):
         positions = dataset.split(split)
         self.positions = positions[::max(1, len(positions) // views)][:views]
-        self.scene, self.integrator, self.samples = scene, integrator, samples
+        self.scene, self.tracer, self.samples = scene, tracer, samples
         self.scopes = dataset.polariscopes()
         view_rays = ViewRays(scene, dataset)
         rng = np.random.default_rng(0)
@@ -81,9 +82,8 @@ class SampledViewLoss:
     def __call__(self, stress_field: StressField) -> float:
         total = count = 0.0
         for (rays, right), measured in zip(self.rays, self.measured):
-            state, blocked, _ = self.integrator.trace_rays(self.scene, rays, right, field=stress_field)
-            predicted = np.stack([np.array(c) for c in intensities(self.integrator.jones(state, blocked),
-                                                                   self.scopes)], axis=-1)
+            traced = self.tracer.trace_rays(self.scene, rays, right, field=stress_field)
+            predicted = np.stack([np.array(c) for c in intensities(traced.jones(), self.scopes)], axis=-1)
             error = np.abs(predicted.reshape(len(measured), self.samples, -1).mean(axis=1) - measured)
             total += float(error.sum())
             count += error.size
@@ -109,9 +109,9 @@ def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, truth
     return results
 
 
-def heldout_predictions(scene: mi.Scene, dataset: Dataset, stress_field: StressField, integrator: mi.Integrator,
+def heldout_predictions(scene: mi.Scene, dataset: Dataset, stress_field: StressField, tracer: Tracer,
                         views: int) -> dict[int, np.ndarray]:
     """``{position: (H * W, 16) intensities}`` of up to ``views`` held-out rotations (:func:`predict_view`)."""
     view_rays = ViewRays(scene, dataset)
-    return {position: predict_view(scene, view_rays, integrator, position, stress_field)
+    return {position: predict_view(scene, view_rays, tracer, position, stress_field)
             for position in dataset.split("test")[:views]}

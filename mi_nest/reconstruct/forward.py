@@ -1,35 +1,35 @@
-"""The forward model of a reconstruction: the integrator it renders its field with."""
+"""The forward model of a reconstruction: the tracer it renders its field with, and its step."""
 from __future__ import annotations
 
 import mitsuba as mi
 
+from ..scene import scene_tracer
+from ..tracer import Tracer, TracerConfig
 from .config import OptimizeConfig
 from .fields import TrainableField
 
 
-# What the scene's own integrator decides about its surfaces, which a reconstruction keeps: the data were
-# rendered so (a dataset simulated with ghosts is fitted with them).
-SURFACE_SETTINGS = ("max_crossings", "max_bounces")
+def forward_step(config: OptimizeConfig, stress_field: TrainableField) -> float:
+    """The step (mm) a reconstruction marches ``stress_field`` with: the configuration's, else for a grid half
+    its node spacing as it stands, so that a coarse-to-fine stage marches its own coarse grid with steps as much
+    longer (the 8-node stage of a 64-node run takes an eighth of the steps), and the finest stage the final
+    grid's."""
+    if config.model.step_size is not None:
+        return config.model.step_size
+    extent = stress_field.bbox_max - stress_field.bbox_min
+    if stress_field.kind == "grid":
+        return float(0.5 * extent.max() / (max(stress_field.shape) - 1))
+    return float(extent.max()) / 64.0
 
 
-def make_integrator(config: OptimizeConfig, stress_field: TrainableField, scene: mi.Scene,
-                    method: str | None = None) -> mi.Integrator:
-    """The photoelastic integrator a reconstruction renders ``scene`` with (jittered steps, no bias from a fixed
-    grid; the scene integrator's ``SURFACE_SETTINGS``); ``method`` overrides the config's forward model.
-
-    A grid's default step is half its node spacing: the grid as it stands, so that a coarse-to-fine stage marches
-    its own coarse grid with steps as much longer (the 8-node stage of a 64-node run takes an eighth of the
-    steps), and the finest stage the final grid's."""
-    step = config.model.step_size
-    if step is None:
-        extent = stress_field.bbox_max - stress_field.bbox_min
-        if stress_field.kind == "grid":
-            step = 0.5 * extent.max() / (max(stress_field.shape) - 1)
-        else:
-            step = float(extent.max()) / 64.0
+def make_tracer(config: OptimizeConfig, stress_field: TrainableField, scene: mi.Scene,
+                method: str | None = None) -> Tracer:
+    """The tracer a reconstruction renders ``scene`` with: jittered steps (no bias from a fixed grid) of
+    :func:`forward_step`, and the scene integrator's surface settings (``max_crossings``, ``max_bounces``),
+    which a reconstruction keeps: the data were rendered so (a dataset simulated with ghosts is fitted with
+    them). ``method`` overrides the config's forward model."""
     method = method or config.model.method
-    method = "linear" if method == "two-step" else method
-    surfaces = {name: getattr(scene.integrator(), name) for name in SURFACE_SETTINGS
-                if hasattr(scene.integrator(), name)}
-    return mi.load_dict({"type": "photoelastic", "method": method, "step_size": float(step), "jitter": True,
-                         **surfaces})
+    surfaces = scene_tracer(scene).config
+    return Tracer(TracerConfig(method="linear" if method == "two-step" else method,
+                               step_size=forward_step(config, stress_field), jitter=True,
+                               max_crossings=surfaces.max_crossings, max_bounces=surfaces.max_bounces))

@@ -4,7 +4,7 @@ Each iteration draws a batch of pixels across training rotations, marches
 their rays through the trainable field (no derivatives kept), takes the L1
 loss of the 16 normalised intensities, and replays the march backwards to push
 the loss gradient into the field (constant memory, see
-``PhotoelasticIntegrator.backpropagate_rays``); Adam updates the field. Joint
+``Tracer.backpropagate_rays``); Adam updates the field. Joint
 phase unwrapping and tensor tomography happen together: nothing is unwrapped
 per view.
 """
@@ -25,13 +25,14 @@ from ..dataset import Dataset
 from ..fields.base import sample
 from ..render import require_memory
 from ..scene import scene_origin, specimen_shapes
+from ..tracer import Tracer
 from . import equilibrium, metrics
 from .free_surface import FreeSurfacePrior
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import OptimizeConfig
 from .evaluation import SampledViewLoss
 from .fields import make_field, refined
-from .forward import make_integrator
+from .forward import forward_step, make_tracer
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
 from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
@@ -129,7 +130,7 @@ class Run:
         spread = self.config.schedule.start_scale_range
         factor = 1.0
         if spread > 0:
-            loss = SampledViewLoss(self.scene, self.dataset, self.integrator(), self.config.optimiser.mask, "train",
+            loss = SampledViewLoss(self.scene, self.dataset, self.tracer(), self.config.optimiser.mask, "train",
                                    SCALE_VIEWS, self.finest_pixel_samples)
             factor = best_scale(self.field, nodes, loss, spread)
         self.field.set_nodes(factor * nodes)
@@ -155,8 +156,9 @@ class Run:
         """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
         return self.config.model.method == "two-step" or self.progress() < self.config.schedule.warm_start
 
-    def integrator(self) -> mi.Integrator:
-        return make_integrator(self.config, self.field, self.scene, "two-step" if self.fitting_retardance() else None)
+    def tracer(self) -> Tracer:
+        """The tracer of this iteration's forward model (the Two-step's linear one while it fits retardance)."""
+        return make_tracer(self.config, self.field, self.scene, "two-step" if self.fitting_retardance() else None)
 
     def learning_rate(self) -> float:
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
@@ -200,7 +202,7 @@ class Run:
 
     def loop(self) -> None:
         schedule, reporting = self.config.schedule, self.config.reporting
-        integrator = self.integrator()
+        tracer = self.tracer()
         phase = self.fitting_retardance()
         bar = None
         if self.show_progress:
@@ -215,15 +217,14 @@ class Run:
         try:
             while self.iteration < schedule.iterations and not self.out_of_time():
                 interrupts.check()
-                if self._refine_if_due():
-                    integrator = self.integrator()     # its step follows the grid's spacing
+                self._refine_if_due()
                 if self.fitting_retardance() != phase:
                     # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
                     phase = self.fitting_retardance()
-                    integrator = self.integrator()
+                    tracer = self.tracer()
                     self.optimizer = self._optimizer()
                 start = time.perf_counter()
-                loss = self.step(integrator)
+                loss = self.step(tracer)
                 elapsed = time.perf_counter() - start
                 self.seconds += elapsed
                 self.history.append({"iteration": self.iteration, "loss": loss,
@@ -259,16 +260,15 @@ class Run:
         self.checkpoint()
         return True
 
-    def _refine_if_due(self) -> bool:
-        """Move to the coarse-to-fine stage the progress has reached; whether the field changed."""
+    def _refine_if_due(self) -> None:
+        """Move to the coarse-to-fine stage the progress has reached."""
         resolution = [r for start, r in self.stages if start <= self.progress()][-1]
         if self.field.kind != "grid" or self.field.config.resolution == resolution:
-            return False
+            return
         self.field = refined(self.field, resolution)
         self.optimizer = self._optimizer()
-        return True
 
-    def step(self, integrator: mi.Integrator) -> float:
+    def step(self, tracer: Tracer) -> float:
         optimiser = self.config.optimiser
         positions, rows, columns, targets = self.dataset.ray_batch(
             optimiser.batch_size, self.rng, views_per_batch=optimiser.views_per_batch, mask=optimiser.mask)
@@ -280,19 +280,22 @@ class Run:
                                           jitter=stratified(len(rows), samples, self.rng))
         self.optimizer.set_learning_rate(self.learning_rate())
         seed = optimiser.seed * 1_000_003 + self.iteration
-        state, blocked, length = integrator.trace_rays(self.scene, rays, right, seed=seed, field=self.field)
+        # The step follows the grid's spacing as it stands (coarse-to-fine).
+        step_size = forward_step(self.config, self.field)
+        traced = tracer.trace_rays(self.scene, rays, right, seed=seed, field=self.field, step_size=step_size)
+        length = traced.length
         admitted = None
         limit = self.path_limit(length, samples)
         if limit is not None:
             # Opaque: a literal limit would rebuild the kernel every iteration.
             admitted = dr.select(dr.block_sum(length, samples) <= dr.opaque(mi.Float, samples * limit), 1.0, 0.0)
         with dr.resume_grad():
-            leaf = tuple(mi.Float(x) for x in state)
+            leaf = tuple(mi.Float(x) for x in traced.state)
             dr.enable_grad(leaf)
             if fitting_retardance:
                 loss = generator_loss(leaf, targets, samples)
             else:
-                loss = l1_loss(integrator.jones(leaf, blocked), targets, samples, admitted, self.polariscopes)
+                loss = l1_loss(traced.jones(leaf), targets, samples, admitted, self.polariscopes)
             total = loss
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
@@ -314,7 +317,8 @@ class Run:
                 total = total + balance
             dr.backward(total)
             state_grad = dr.grad(leaf)
-        integrator.backpropagate_rays(self.scene, rays, right, state, state_grad, seed=seed, field=self.field)
+        tracer.backpropagate_rays(self.scene, rays, right, traced, state_grad, seed=seed, field=self.field,
+                                  step_size=step_size)
         value = float(total[0])
         if regulariser.free_surface:
             # Its own backward, after the rays': taken in one backward with the rays' loss, the texture lookups'

@@ -106,7 +106,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         result = run.result()
         result.source["choices"] = chosen
         # The held-out views rendered once: for the PSNR and for the trust map's residuals.
-        predictions = heldout_predictions(scene, dataset, result.field, run.integrator(),
+        predictions = heldout_predictions(scene, dataset, result.field, run.tracer(),
                                           config.reporting.evaluate_views)
         result.metrics.update(evaluate(scene, dataset, result.field, truth, predictions, config.optimiser.mask,
                                        shapes))

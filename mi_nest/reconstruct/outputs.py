@@ -22,7 +22,7 @@ def write_test_view(scene: mi.Scene, result: Reconstruction, output: str | Path,
     test = dataset.split("test") or dataset.split("train")
     position = test[0]
     width, height = dataset.resolution
-    predicted = predict_view(scene, ViewRays(scene, dataset), result.integrator(scene), position, result.field)
+    predicted = predict_view(scene, ViewRays(scene, dataset), result.tracer(scene), position, result.field)
     measured = dataset.measurements(position)
     channels = {f"reconstructed.{name}": predicted[:, i].reshape(height, width)
                 for i, name in enumerate(dataset.channels)}

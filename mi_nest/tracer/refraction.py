@@ -1,11 +1,11 @@
-"""Refracting surfaces: which shapes are dielectric interfaces, and the walk that bends at them
-(docs/physics.md section 8).
+"""The walk that bends at refracting surfaces (docs/physics.md section 8); ``surfaces.py`` says which
+surfaces refract.
 
 A shape whose BSDF is Mitsuba's smooth ``dielectric`` is an interface with the
 index ratio ``int_ior / ext_ior`` (Mitsuba's ``eta``): a specimen's own surface,
 or a bath (a closed shape without a stress medium: an immersion tank's liquid
 or wall). Without one, a specimen is index-matched and its rays run straight
-(the plugin's own walk, unchanged). As in Mitsuba, each surface says what lies
+(``walk.py``). As in Mitsuba, each surface says what lies
 on either side of it: nested interfaces must agree (a specimen's ``ext_ior`` is
 its bath's ``int_ior``).
 
@@ -18,7 +18,7 @@ reflection) it is reflected with the reflection's phases; a ray trapped past
 That transmitted path is deterministic and differentiable. Partial reflections
 make the ghosts: with ``bounces`` the walk instead samples at each crossing
 where the light is partly reflected, reflection or transmission, and weights
-the chosen Fresnel matrix by the choice's probability (the integrator adds the
+the chosen Fresnel matrix by the choice's probability (the tracer adds the
 ghosts' intensities to the transmitted path's). The stress march runs as
 before on each straight segment inside a specimen. The camera's polariscope elements act in
 its frame; the light's face the camera, so a bent path's matrix is turned at
@@ -26,71 +26,18 @@ the light by the path's geometric rotation (:func:`sheet_rotation`).
 """
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, NamedTuple
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from mi_nest import occupancy
 from mi_nest.physics import interface, jones, projection, su2
 
-from .guards import SceneSetupError
-from .methods import equal_steps
+from .segment import Segment, equal_steps
 
 if TYPE_CHECKING:
     from .setup import SceneSetup
-
-# Mitsuba's BSDF classes a surface may carry, and why the others that transmit are refused.
-INTERFACE_BSDF = "SmoothDielectric"
-REFUSED_BSDFS = {
-    "RoughDielectric": "a rough dielectric scatters the light it transmits, which no Jones product follows; "
-                       "use a smooth 'dielectric'",
-    "ThinDielectric": "a thin dielectric sheet has no inside to hold a stress field or a bath; use a closed "
-                      "shape with a 'dielectric'",
-}
-
-
-def interface_ratio(shape: mi.Shape) -> float | None:
-    """``int_ior / ext_ior`` of ``shape``'s surface, or None where it carries no dielectric."""
-    bsdf = shape.bsdf()
-    if bsdf is None:
-        return None
-    kind = bsdf.class_name()
-    name = shape.id() or shape.class_name()
-    if kind in REFUSED_BSDFS:
-        raise SceneSetupError(f"photoelastic: the surface of '{name}' is a {kind}: {REFUSED_BSDFS[kind]}")
-    if kind != INTERFACE_BSDF:
-        return None
-    ratio = float(mi.traverse(bsdf)["eta"])
-    if not (math.isfinite(ratio) and ratio > 0):
-        raise SceneSetupError(f"photoelastic: the dielectric surface of '{name}' has int_ior / ext_ior = {ratio}; "
-                              "give both indices as positive numbers (or a material name Mitsuba knows)")
-    return ratio
-
-
-# Specimen and bath pairs known not to cut each other, by registry ids and bounding boxes: the check traces
-# rays, and a scene is set up again for every render pass and training batch.
-_apart_pairs = set()
-
-
-def require_apart(scene: mi.Scene, specimen: mi.Shape, bath: mi.Shape, samples: int = 512) -> None:
-    """A bath's surface must not cut a specimen: the specimen lies wholly inside it or wholly outside."""
-    key = tuple((occupancy.shape_id(shape), str(shape.bbox()))
-                for shape in (specimen, bath))
-    if key in _apart_pairs:
-        return
-    sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(0, samples)
-    points = specimen.sample_position(0.0, sampler.next_2d()).p
-    inside = occupancy.inside(scene, [bath], np.array(points).T)
-    if inside.any() and not inside.all():
-        raise SceneSetupError(f"photoelastic: the surface of bath '{bath.id() or bath.class_name()}' cuts specimen "
-                              f"'{specimen.id() or specimen.class_name()}' ({int(inside.sum())} of {samples} points "
-                              "of the specimen's surface inside it); a bath must hold its specimens whole")
-    _apart_pairs.add(key)
-
 
 class RefractedPath(NamedTuple):
     """What the refracted walk gives per ray."""
@@ -235,7 +182,7 @@ def _start(ray, setup):
 
 @dr.syntax
 def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
-          active: mi.Bool, max_crossings: int, make_segment, bounces: int = 0) -> RefractedPath:
+          active: mi.Bool, max_crossings: int, bounces: int = 0) -> RefractedPath:
     """Follow each camera ray through every interface and specimen; see the module's docstring. With
     ``bounces``, sample a path of up to that many partial reflections (the Jones matrix weighted by the inverse
     square root of its probability)."""
@@ -254,7 +201,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     reflections = mi.UInt32(0)
     active = mi.Bool(active)
 
-    while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment]):
+    while dr.hint(active, exclude=[method, ray, scene, seeds, setup]):
         si = _query(scene, launch, d, reach, ray, active)
         # One more surface than the limit allows (trapped by total reflection): it never reaches the light.
         trapped = active & si.is_valid() & (crossings >= max_crossings)
@@ -262,7 +209,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         active &= ~trapped
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
                              reflection_choice(seeds, crossings, reflections, bounces))
-        segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
+        segment = Segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         state, fringe = method.trace((state, fringe), segment, setup)
         length += dr.select(crossing.marched, crossing.chord, 0.0)
@@ -293,7 +240,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
 
 @dr.syntax
 def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
-           active: mi.Bool, max_crossings: int, make_segment, total: jones.Biquaternion,
+           active: mi.Bool, max_crossings: int, total: jones.Biquaternion,
            grad: jones.Biquaternion, bounces: int = 0) -> None:
     """The adjoint of :func:`trace`: back-propagate ``grad`` (the adjoint of the path's Jones matrix ``total``)
     into every segment's field lookups.
@@ -316,12 +263,12 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
     reflections = mi.UInt32(0)
     active = mi.Bool(active)
 
-    while dr.hint(active, exclude=[method, ray, scene, seeds, setup, make_segment, total, grad]):
+    while dr.hint(active, exclude=[method, ray, scene, seeds, setup, total, grad]):
         si = _query(scene, launch, d, reach, ray, active)
         active &= ~(si.is_valid() & (crossings >= max_crossings))
         crossing = _crossing(si, origin, d, u, v, medium, setup, step_size, active,
                              reflection_choice(seeds, crossings, reflections, bounces))
-        segment = make_segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
+        segment = Segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         product, _ = method.march(segment, setup)
         with_segment = jones.multiply(before, jones.from_quaternion(product))

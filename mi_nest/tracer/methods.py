@@ -6,13 +6,12 @@ definition marches the segments of the integrator's walk (Dr.Jit, in a
 symbolic loop) and, for the methods that are products of unitary steps, chords
 of NumPy arrays (:meth:`ChainMethod.march_chords`), which is what ``auto``'s
 step doubling measures. A method also says how segments combine along a ray
-and how the adjoint pass replays them. :func:`from_properties` maps the
-integrator's ``method`` property to an object; nothing else reads the name.
+and how the adjoint pass replays them. ``registry.py`` maps the names of the
+integrator's ``method`` property to these classes; nothing else reads the name.
 """
 from __future__ import annotations
 
-import logging
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol
 
 import drjit as dr
 import mitsuba as mi
@@ -21,7 +20,7 @@ import numpy as np
 from mi_nest.physics import su2
 from mi_nest.physics.backend import Array
 
-from . import auto
+from .segment import Segment
 
 if TYPE_CHECKING:
     from .setup import SceneSetup
@@ -36,17 +35,8 @@ GAUSS_POINTS = (0.5 + 3.0 ** 0.5 / 6.0, 0.5 - 3.0 ** 0.5 / 6.0)
 Fringe = tuple
 
 
-class Segment(Protocol):
-    """One inside chord of each ray in a walk: ``steps`` steps of length ``h`` from ``origin`` along ``d``
-    through medium ``medium``."""
-
-    steps: mi.UInt32
-    h: mi.Float
-    medium: mi.UInt32
-    origin: mi.Point3f
-    d: mi.Vector3f
-    coefficients: tuple     # the ray's projection coefficients (SceneSetup.projection_coefficients)
-    seed: mi.UInt32
+# NumPy ``points (..., 3) -> (p, q)``: the step generator per mm at points (mm).
+GeneratorField = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 class StepSample(Protocol):
@@ -59,13 +49,6 @@ class StepSample(Protocol):
 
     def jittered(self) -> Array:
         """A uniformly random fraction of the step, the same in every pass over it (Dr.Jit only)."""
-
-
-def equal_steps(chord: mi.Float, marched: mi.Bool, step_size: float) -> tuple[mi.UInt32, mi.Float]:
-    """``(steps, h)``: a marched chord split into ``ceil(chord / step_size)`` equal steps (at least one) of
-    length ``h``; none where it is not marched."""
-    steps = mi.UInt32(dr.select(marched, dr.maximum(dr.ceil(chord / step_size), 1), 0))
-    return steps, chord / mi.Float(dr.maximum(steps, 1))
 
 
 class Decision(NamedTuple):
@@ -166,7 +149,7 @@ class ChainMethod(Method):
         second, second_fringe = self.step(SegmentStep(segment, setup, index + 1))
         return su2.multiply(first, second), _add(first_fringe, second_fringe)
 
-    def march_chords(self, generator: auto.GeneratorField, starts: np.ndarray, direction: np.ndarray,
+    def march_chords(self, generator: GeneratorField, starts: np.ndarray, direction: np.ndarray,
                      lengths: np.ndarray, step_size: float) -> su2.Quaternion:
         """Jones quaternions of NumPy chords ``starts + t direction``, ``t`` in ``[0, lengths]``.
 
@@ -318,41 +301,6 @@ class RK4(Method):
         return k, fringe
 
 
-class Auto:
-    """``auto``: before a render, analyse the field along the light and pick ``linear`` or ``magnus4``."""
-
-    name = "auto"
-
-    def __init__(self, tolerance: float, jitter: bool = False):
-        self.tolerance, self.jitter = tolerance, jitter
-
-    def decide(self, setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor | None, step_size: float) -> Decision:
-        if sensor is None:
-            raise ValueError("photoelastic: 'auto' analyses the field as one camera sees it; rays drawn across "
-                             "views need an explicit method and step_size")
-        method, step_size, reason = auto.choose(setup, scene, sensor, self.tolerance, Linear(jitter=self.jitter),
-                                                Magnus4())
-        logging.getLogger("mi_nest").info(reason)
-        return Decision(method, step_size, reason)
-
-
-# Each choice of the ``method`` property, made from the ``point`` fraction, ``jitter`` and ``tolerance``.
-CHOICES = {Product.name: lambda point, jitter, tolerance: Product(point, jitter),
-           Linear.name: lambda point, jitter, tolerance: Linear(point, jitter),
-           Magnus4.name: lambda point, jitter, tolerance: Magnus4(),
-           RK4.name: lambda point, jitter, tolerance: RK4(),
-           Auto.name: lambda point, jitter, tolerance: Auto(tolerance, jitter)}
-
-
-def from_properties(method: str, points: str, jitter: bool, tolerance: float) -> Method | Auto:
-    """The method the integrator's ``method``, ``points``, ``jitter`` and ``tolerance`` properties name."""
-    if method not in CHOICES:
-        raise ValueError(f"photoelastic: unknown method '{method}'; choose one of {tuple(CHOICES)}")
-    if points not in POINTS:
-        raise ValueError(f"photoelastic: unknown points '{points}'; choose one of {tuple(POINTS)}")
-    return CHOICES[method](POINTS[points], jitter, tolerance)
-
-
 class SegmentStep:
     """Step ``index`` of a walk's segment, marched by Dr.Jit."""
 
@@ -373,7 +321,7 @@ class SegmentStep:
 class ChordSteps:
     """Every step of NumPy chords at once, as ``(chords, steps)`` arrays padded with zero-length steps."""
 
-    def __init__(self, generator: auto.GeneratorField, starts: np.ndarray, direction: np.ndarray,
+    def __init__(self, generator: GeneratorField, starts: np.ndarray, direction: np.ndarray,
                  lengths: np.ndarray, step_size: float):
         lengths = np.asarray(lengths, dtype=np.float64)
         counts = np.maximum(np.ceil(lengths / step_size - 1e-9), 1).astype(np.int64)

@@ -1,9 +1,7 @@
 """What one render needs from the scene: the specimens' media and fields, a shape lookup, the polariscope.
 
-Media, the light and the camera are recognised by their plugin classes. The
-plugin modules are re-imported whenever the Mitsuba variant changes
-(``plugins/__init__.py``), so each class is looked up on its module when a
-scene is set up, never kept from an earlier import.
+Media, the light and the camera are recognised by the parts their plugin
+classes register as (``parts.py``).
 """
 from __future__ import annotations
 
@@ -16,13 +14,13 @@ import numpy as np
 from mi_nest import occupancy
 from mi_nest.fields import StressField
 from mi_nest.physics import Polariscope, projection
-from mi_nest.plugins import polariscope, polariscope_light, stress
 
-from . import refraction
+from . import surfaces
 from .guards import SceneSetupError, require_closed
+from .parts import PolariscopeCameraPart, PolariscopeLightPart, StressMediumPart
 
 if TYPE_CHECKING:
-    from .methods import Segment
+    from .segment import Segment
 
 
 class SceneSetup:
@@ -47,9 +45,9 @@ class SceneSetup:
         bounds = mi.ScalarBoundingBox3f()
         for shape in scene.shapes():
             medium = shape.interior_medium()
-            is_specimen = isinstance(medium, stress.StressMedium)
+            is_specimen = isinstance(medium, StressMediumPart)
             shape_id = occupancy.shape_id(shape)
-            ratio = refraction.interface_ratio(shape)
+            ratio = surfaces.interface_ratio(shape)
             if ratio == 1.0 and is_specimen:
                 ratio = None        # index-matched: the straight walk, as without a surface
             if ratio is not None:
@@ -73,7 +71,7 @@ class SceneSetup:
         for shape_id, index in shape_media.items():
             table[shape_id] = index
         self.medium_of_shape = mi.UInt32(table)
-        # Where surfaces refract, the walk of integration/refraction.py follows the bent paths.
+        # Where surfaces refract, the walk of tracer/refraction.py follows the bent paths.
         self.refracting = bool(shape_ratios)
         if self.refracting:
             ratios = np.zeros(max(max(shape_ratios), len(table) - 1) + 1, dtype=np.float32)
@@ -83,17 +81,17 @@ class SceneSetup:
             self.medium_of_shape = mi.UInt32(np.pad(table, (0, len(ratios) - len(table))))
             for bath in baths:
                 for shape, _ in self.specimens:
-                    refraction.require_apart(scene, shape, bath)
+                    surfaces.require_apart(scene, shape, bath)
         self.fields = [medium.field if field is None else field for medium in self.media]
         # Per medium, ``pi C / lambda`` times its field's stress at points: phase per mm.
         self.phase_tensors = [_phase_tensor(f, medium.phase_rate) for f, medium in zip(self.fields, self.media)]
 
-        lights = [e for e in scene.emitters() if isinstance(e, polariscope_light.PolariscopeLight)]
+        lights = [e for e in scene.emitters() if isinstance(e, PolariscopeLightPart)]
         if len(lights) != 1:
             raise SceneSetupError(f"photoelastic: the scene needs exactly one "
                                   f'<emitter type="polariscope_light">, found {len(lights)}')
         light = lights[0]
-        output_qwp, analyzer = ((sensor.qwp, sensor.analyzer) if isinstance(sensor, polariscope.PolariscopeCamera)
+        output_qwp, analyzer = ((sensor.qwp, sensor.analyzer) if isinstance(sensor, PolariscopeCameraPart)
                                 else (None, None))
         self.radiance = light.radiance
         # A finite panel: (side, distance behind the specimens' centre, that centre, the camera's axis).
@@ -138,7 +136,7 @@ class SceneSetup:
 
     def frame_coefficients(self, u: mi.Vector3f, v: mi.Vector3f) -> tuple[tuple, tuple]:
         """:meth:`projection_coefficients` in a given transverse frame ``(u, v)``: a straight ray's, or one
-        carried along a bent path (integration/refraction.py)."""
+        carried along a bent path (tracer/refraction.py)."""
         alpha, beta = projection.projection_coefficients(u, v)
         rate = self.media[0].phase_rate if len(self.media) == 1 else 1.0
         if self.phase_scale != 1.0:
@@ -172,7 +170,7 @@ class SceneSetup:
 
 
 def _orthographic(sensor: mi.Sensor) -> bool:
-    if isinstance(sensor, polariscope.PolariscopeCamera):
+    if isinstance(sensor, PolariscopeCameraPart):
         return sensor.projection == "orthographic"
     return sensor.class_name() == "OrthographicCamera"
 

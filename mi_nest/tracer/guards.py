@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import warnings
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -59,35 +58,6 @@ def check_steps_per_ray(diagonal: float, step: float) -> None:
                               f"the specimens (their bounding box diagonal is {diagonal:.4g} mm); the most is "
                               f"{MAX_STEPS_PER_RAY:.0e}: use a step_size of at least "
                               f"{diagonal / MAX_STEPS_PER_RAY:.2g} mm")
-
-
-# A fixed step longer than this share of a specimen's thinnest side is checked against the field (the check samples
-# the field along the light, about 10 ms: finer steps, the rule, skip it).
-COARSE_SHARE = 0.25
-# Axes that turn by more than this (rad) within one step of a field this strong make a step's exponential wrong.
-TURN_PER_STEP = 0.3
-
-
-def warn_if_coarse(setup, scene: mi.Scene, sensor: mi.Sensor | None, step: float) -> None:
-    """Warn when a fixed ``step`` (mm) is so long that the field's principal axes turn within it while its phase
-    grows: each step then multiplies the wrong exponential (the twisted block at 1000 mm renders 3.6 rad off)."""
-    from .auto import sample_lines
-    if sensor is None or not setup.specimens:
-        return
-    thinnest = min(float(dr.min(shape.bbox().extents())) for shape, _ in setup.specimens)
-    if step <= COARSE_SHARE * thinnest:
-        return
-    rates, _, _ = sample_lines(setup, scene, sensor)
-    if rates is None or rates.commuting:
-        return
-    reach = min(step, rates.path_length)
-    turn, phase = rates.rotation_rate * reach, rates.retardance_rate * reach
-    if turn > TURN_PER_STEP and phase > TURN_PER_STEP:
-        finer = TURN_PER_STEP / max(rates.rotation_rate, rates.retardance_rate)
-        warnings.warn(f"photoelastic: step_size {step:g} mm is coarse for this field: its principal axes turn by up "
-                      f"to {turn:.2g} rad and its phase grows by up to {phase:.2g} rad within one step, so each step's "
-                      f"exponential is far from the ordered product; use a step_size of at most about {finer:.2g} mm, "
-                      "or method 'auto', which chooses one", RuntimeWarning, stacklevel=2)
 
 
 def warn_if_not_unitary(norm_error: float, step_size: float) -> None:

@@ -1,0 +1,98 @@
+"""The straight walk: each ray through every specimen of an index-matched scene, segment by segment.
+
+Where surfaces refract, ``refraction.py`` walks instead; both hand each inside
+segment to the method as a :class:`~.methods.Segment`.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Callable
+
+import drjit as dr
+import mitsuba as mi
+
+from mi_nest import occupancy
+
+from .segment import Segment, equal_steps
+
+if TYPE_CHECKING:
+    from .setup import SceneSetup
+
+# Queries again, each from a little further on, for a crossing that a ray inside a specimen did not find.
+RETRIES = 2
+
+
+@dr.syntax
+def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, active: mi.Bool, seeds: mi.UInt32,
+         carry: object, segment_step: Callable, max_crossings: int) -> tuple[object, mi.Bool, mi.Float]:
+    """Follow each ray through every specimen; ``carry = segment_step(carry, segment, setup)`` for each inside
+    segment.
+
+    Returns ``(carry, blocked, length)``: whether an opaque shape stops the ray,
+    and its length inside specimens. The primal pass and the adjoint replay
+    differ only in ``carry`` and ``segment_step``.
+
+    Inside a specimen the next crossing must be its exit (or a glued
+    neighbour's face, or an opaque shape), and an exit must follow an entry
+    (or another specimen's exit: faces glued, the coincident entry skipped).
+    Where they do not, Embree missed a face where the ray met a mesh edge (it
+    does without robust intersections, whatever flags the scene was loaded
+    with) or the ray grazed a silhouette: the query is made again from a
+    point nudged by a surface clearance (``occupancy.nudged``), not flagged
+    coherent (coherent queries round alike), up to :data:`RETRIES`
+    times. What is still there was a touch, and marches nothing.
+    """
+    d = mi.Vector3f(ray.d)
+    coefficients = setup.projection_coefficients(d)
+    origin = mi.Point3f(ray.o)
+    launch = mi.Point3f(ray.o)      # where the next intersection query starts
+    reach = mi.Float(ray.maxt)      # and how far it looks: the camera's range, then unbounded
+    medium = mi.UInt32(0)           # 0 outside, i + 1 inside specimen medium i
+    current = mi.UInt32(0)          # the specimen shape the ray is in (0 outside)
+    after_exit = mi.Bool(False)     # whether the last crossing left a specimen
+    retries = mi.UInt32(0)          # queries again for the same crossing
+    blocked = mi.Bool(False)
+    length = mi.Float(0)
+    crossings = mi.UInt32(0)
+    active = mi.Bool(active)
+
+    # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
+    while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment_step, setup, step_size]):
+        si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
+                                 ray_flags=mi.RayFlags.Minimal, coherent=setup.coherent_rays & (retries == 0),
+                                 active=active)
+        hit = si.is_valid()
+        shape = dr.reinterpret_array(mi.UInt32, si.shape)
+        hit_medium = dr.gather(mi.UInt32, setup.medium_of_shape, shape, hit)
+        entering = dr.dot(si.n, d) < 0
+        exiting = hit & ~entering & (hit_medium != 0)
+        unexpected = dr.select(medium != 0, ~hit | (entering & (shape == current)), exiting & ~after_exit)
+        retry = active & unexpected & (retries < RETRIES)
+        # Leaving a specimen proves the segment was inside it, even if its entry face was
+        # skipped for coinciding with the face just left (specimens glued face to face).
+        inside = dr.select(exiting, hit_medium, medium)
+        # The chord between hit points, not the spawned ray's t (its origin is offset).
+        chord = dr.norm(si.p - origin)
+        marched = active & hit & (inside != 0) & ~unexpected
+        steps, h = equal_steps(chord, marched, step_size)
+        segment_seed = mi.sample_tea_32(seeds, crossings)[0]
+        carry = segment_step(carry, Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
+        length += dr.select(marched, chord, 0.0)
+        crossed = ~retry
+        blocked |= crossed & hit & (hit_medium == 0)
+        medium = dr.select(crossed, dr.select(entering, hit_medium, 0), medium)
+        current = dr.select(crossed, dr.select(entering & (hit_medium != 0), shape, 0), current)
+        after_exit = dr.select(crossed, exiting & ~unexpected, after_exit)
+        origin = dr.select(crossed, si.p, origin)
+        launch = dr.select(crossed, occupancy.past_surface(si, d), occupancy.nudged(launch, d, retries))
+        reach = dr.select(crossed, dr.inf, reach)
+        retries = dr.select(crossed, 0, retries + 1)
+        crossings += 1
+        active &= (hit | retry) & ~blocked & (crossings < max_crossings)
+    return carry, blocked, length
+
+
+def past_panel(setup: SceneSetup, ray: mi.Ray3f, blocked: mi.Bool) -> mi.Bool:
+    """``blocked``, or where a straight ray misses a finite light panel (it brings no light either)."""
+    if setup.panel is None:
+        return blocked
+    return blocked | setup.misses_panel(mi.Point3f(ray.o), mi.Vector3f(ray.d), mi.Vector3f(ray.d))
