@@ -68,6 +68,18 @@ def test_a_stressed_slab_at_normal_incidence_is_the_index_matched_render_times_t
     assert straight["pol.45.0.0"].std() < 1e-6 and 0.1 < straight["pol.45.0.0"].mean() < 0.9     # a real retarder
 
 
+def test_the_linear_model_through_refracting_surfaces_gives_the_specimens_own_jones_channels():
+    """A uniform slab's steps commute, so the linear model is exact: its Jones channels through refracting
+    surfaces are the product's (the linear state is a generator, exponentiated once per segment)."""
+    strong = {name: 15.0 * value for name, value in STRESS.items()}      # about 2 rad of retardance
+    scenes = {method: _scene(_slab(N, tilt=20.0, stress=strong)) for method in ("product", "linear")}
+    scenes["linear"].integrator().configure(method="linear")
+    product, linear = (_channels(scenes[method]) for method in ("product", "linear"))
+    for name in ("jones.a", "jones.b", "jones.c", "jones.d", "char.delta", "Y", *MEASUREMENTS):
+        np.testing.assert_allclose(linear[name], product[name], atol=2e-4, err_msg=name)
+    assert np.abs(product["char.delta"]).min() > 1.5
+
+
 @pytest.mark.parametrize("tilt", [30.0, math.degrees(interface.brewster_angle(1.0, N))], ids=["30 deg", "Brewster"])
 def test_an_unstressed_slab_at_oblique_incidence_transmits_as_fresnel_says(tilt):
     """Tilted about x: the plane of incidence is y-z, so s is image right (u) and p image up (v). Between

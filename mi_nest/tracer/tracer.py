@@ -249,7 +249,7 @@ class Tracer:
                 carry = method.trace(carry, segment, setup)
                 length += dr.select(marched, chord, 0.0)
             state, fringe = carry
-            main, aovs = self.outputs(plan, state, fringe, mi.Bool(False), length)
+            main, aovs = self.outputs(plan, method.finish(state), fringe, mi.Bool(False), length)
             dr.eval(main, aovs, fringe)
             return main[0], aovs, fringe
 
@@ -285,7 +285,7 @@ class Tracer:
         if not method.unitary:
             # Measure how far it drifted (read after the render).
             plan.norm_error = dr.max(dr.select(blocked, 0.0, dr.abs(su2.norm_squared(state) - 1.0)))
-        main, aovs = self.outputs(plan, state, fringe, blocked, length)
+        main, aovs = self.outputs(plan, method.finish(state), fringe, blocked, length)
         return main, aovs, (state, fringe, blocked, length)
 
     def replay_samples(self, plan: TracePlan, scene: mi.Scene, sampler: mi.Sampler, ray: mi.Ray3f,
@@ -297,7 +297,7 @@ class Tracer:
         with dr.resume_grad():
             leaf = tuple(mi.Float(dr.detach(x)) for x in state)
             dr.enable_grad(leaf)
-            main, aovs = self.outputs(plan, leaf, fringe, blocked, length)
+            main, aovs = self.outputs(plan, plan.decision.method.finish(leaf), fringe, blocked, length)
             objective = dr.sum(main_grad * main)
             for name, value, grad in zip(CHANNELS, aovs, aov_grads):
                 # Only channels of the Jones product carry a derivative; skipping zero adjoints also
@@ -308,15 +308,15 @@ class Tracer:
             state_grad = dr.grad(leaf)
         self.replay(scene, ray, plan, active, seeds, state, state_grad)
 
-    def outputs(self, plan: TracePlan, state: tuple, fringe: tuple, blocked: mi.Bool, length: mi.Float,
-                path_jones: jones.Biquaternion | None = None,
+    def outputs(self, plan: TracePlan, specimens: su2.Quaternion, fringe: tuple, blocked: mi.Bool,
+                length: mi.Float, path_jones: jones.Biquaternion | None = None,
                 ghost: jones.Biquaternion | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
-        """Main intensity and the AOV channels (``film.CHANNELS``) from a traced state; with ``path_jones`` (a
-        refracted path's whole Jones matrix) the intensities are its, the Jones channels the specimens' own; a
-        ``ghost`` path's (partly reflected, zero where there is none) intensities add to them (incoherent
-        light)."""
+        """Main intensity and the AOV channels (``film.CHANNELS``) from the specimens' Jones quaternion (a
+        method's finished state); with ``path_jones`` (a refracted path's whole Jones matrix) the intensities are
+        its, the Jones channels the specimens' own; a ``ghost`` path's (partly reflected, zero where there is
+        none) intensities add to them (incoherent light)."""
         setup = plan.setup
-        q = _jones(PathKind.STRAIGHT, plan.decision.method, state, blocked)
+        q = su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens))
         matrix = q if path_jones is None else _jones(PathKind.REFRACTED, plan.decision.method,
                                                      tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
         if ghost is not None:
