@@ -22,11 +22,14 @@ import numpy as np
 
 from .render import NonFiniteImageError, render
 from .scene import load_scene
+from .tracer.methods import POINTS
+from .tracer.registry import FIXED, METHODS
 from .physics import MEASUREMENTS
 
-# (label, method, points) of every curve.
-CURVES = (("product, left", "product", "left"), ("product, midpoint", "product", "midpoint"),
-          ("magnus4", "magnus4", None), ("rk4", "rk4", None), ("linear", "linear", None))
+# (label, method, points) of every curve: each method that marches as named, at each point of those that take one.
+CURVES = tuple(curve for name in FIXED for curve in
+               ([(f"{name}, {point}", name, point) for point in POINTS] if METHODS[name].takes_points
+                else [(name, name, None)]))
 
 
 @dataclass(frozen=True)

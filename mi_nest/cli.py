@@ -17,7 +17,7 @@ from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
 from .inside.slicing import REGION_HELP
 from .io.atomic import require_file_path
 from .physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS
-from .reconstruct import DivergenceError
+from .reconstruct import KIND_CHOICES, METHODS, DivergenceError
 from .rig.errors import RigError
 from .scene import parse_define
 
@@ -131,7 +131,7 @@ def _parser():
                                              "dataset was simulated from, with its defines)")
     reconstruct.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                              metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
-    reconstruct.add_argument("--kind", choices=("auto", "grid", "hashgrid", "mlp"), default="auto",
+    reconstruct.add_argument("--kind", choices=tuple(KIND_CHOICES), default="auto",
                              help="field representation (default: auto, the cheapest that fits)")
     reconstruct.add_argument("--iterations", type=int, help="(default: 20000, what the targets needed)")
     reconstruct.add_argument("--minutes", type=float,
@@ -154,7 +154,7 @@ def _parser():
     reconstruct.add_argument("--option", dest="options", action="append", type=parse_define, default=[],
                              metavar="NAME=VALUE", help=f"any other option of mi_nest.optimize (repeatable; e.g. "
                                                         f"{OPTION_EXAMPLES}; docs/reconstruction.md lists them)")
-    reconstruct.add_argument("--method", choices=("product", "magnus4", "linear", "two-step"),
+    reconstruct.add_argument("--method", choices=METHODS,
                              help="forward model (default: product, NeST-general; linear is NeST-approx; two-step "
                                   "is the baseline: per-view unwrapping, then linear tomography)")
     reconstruct.add_argument("--start", metavar="FIELD",

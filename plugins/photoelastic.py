@@ -12,7 +12,8 @@ from mi_nest.physics.aliasing import FringeAliasing
 from mi_nest.tracer import film as films
 from mi_nest.tracer import guards
 from mi_nest.tracer.film import CHANNELS
-from mi_nest.tracer.methods import Decision, Product
+from mi_nest.tracer.methods import Decision
+from mi_nest.tracer.registry import METHODS, require_adjoint
 from mi_nest.tracer.tracer import SCENE_VIEW, TracePlan, Tracer, TracerConfig, View
 
 # The properties, each read as its TracerConfig field's type.
@@ -125,8 +126,10 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         mi.CppADIntegrator.__init__(self, props)
         given = {name: props.get(name) for name in PROPERTIES if name in props}
         self.tracer = Tracer(TracerConfig(**{name: PROPERTIES[name](value) for name, value in given.items()}))
-        if "points" in given and not isinstance(self.tracer.method, Product):
-            raise ValueError("photoelastic: 'points' applies to method 'product' only")
+        if "points" in given and not self.tracer.method.takes_points:
+            takers = " and ".join(f"'{name}'" for name, cls in METHODS.items() if getattr(cls, "takes_points", False))
+            raise ValueError(f"photoelastic: 'points' applies to method {takers} only, not "
+                             f"'{self.tracer.config.method}'")
         self._plan = None       # what the render in progress shares with sample(): Mitsuba's render calls it
 
     def configure(self, **changes) -> None:
@@ -199,7 +202,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                              '(<rfilter type="box"/>) without border')
         with self._planned(scene, sensor) as plan, dr.suspend_grad():
             guards.refuse_refraction(plan.setup, "differentiable rendering")
-            plan.decision.method.require_adjoint()
+            require_adjoint(plan.decision.method)
             sampler, spp = self.prepare(sensor, seed, spp, self.aov_names())
             ray, weight, _ = self.sample_rays(scene, sensor, sampler)
             # Each pixel is the mean of its spp consecutive samples: each sample receives grad / spp.

@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..dataset import Dataset
-from .config import DENSE_REGULARISED, NO_REGULARISER, REGULARISED, OptimizeConfig
+from ..tracer.registry import METHODS as TRACER_METHODS
+from .kinds import AUTO, kind_named
+from .config import DENSE_REGULARISED, FORWARD_MODELS, NO_REGULARISER, REGULARISED, TWO_STEP, OptimizeConfig
 from .fields import (DEFAULT_RESOLUTIONS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT, MIN_NODES_ACROSS, dense_fringes,
                      grid_shape)
 
-METHOD_NAMES = {"product": "NeST-general (a product of exact steps)", "magnus4": "4th-order Magnus steps",
-                "linear": "NeST-approx (the linear model)", "two-step": "the Two-step baseline"}
+METHOD_NAMES = {**{name: TRACER_METHODS[name].label for name in FORWARD_MODELS}, TWO_STEP: "the Two-step baseline"}
 
 
 def data_facts(dataset: Dataset) -> str:
@@ -39,7 +40,8 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
     """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`, which
     was given the same ``extent`` and ``aliased_share``)."""
     field = settled.field
-    if field.kind == "grid":
+    lattice = kind_named(field.kind).lattice
+    if lattice:
         nx, ny, nz = grid_shape(field.resolution, extent)
         if asked.field.resolution is not None:
             why = "--resolution"
@@ -51,13 +53,13 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
                    f"{MIN_NODES_ACROSS} across the thinnest side")
         representation = f"grid {nx}x{ny}x{nz} ({why})"
     else:
-        why = ("--kind" if asked.field.kind != "auto" else
+        why = ("--kind" if asked.field.kind != AUTO.name else
                f"a grid at {field.resolution} nodes would pass {GRID_NODE_LIMIT:,} nodes")
         representation = f"{field.kind} ({why})"
     if settled.model.step_size is not None:
         step = f"{settled.model.step_size:g} mm steps"
     else:
-        step = "steps of half the node spacing" if field.kind == "grid" else "steps of the box / 64"
+        step = "steps of half the node spacing" if lattice else "steps of the box / 64"
     regulariser = settled.regulariser
     if regulariser == REGULARISED:
         smoothing = ("the targets' smoothness, eased above a field RMS of "

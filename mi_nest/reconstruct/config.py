@@ -18,11 +18,14 @@ from dataclasses import asdict, dataclass, fields, replace
 from typing import get_type_hints
 
 from ..arguments import whole_number
+from ..tracer.registry import DIFFERENTIABLE
+from .kinds import AUTO, MLP, kind_named
 
-FORWARD_MODELS = ("product", "magnus4", "linear")
+# The tracer's methods a reconstruction can differentiate.
+FORWARD_MODELS = DIFFERENTIABLE
 # The Two-step baseline fits per-view unwrapped retardance through the linear model (two_step.py).
-METHODS = FORWARD_MODELS + ("two-step",)
-KINDS = ("grid", "hashgrid", "mlp")
+TWO_STEP = "two-step"
+METHODS = FORWARD_MODELS + (TWO_STEP,)
 
 
 def _require_share(name, value, of="the run", closed=False, positive=False):
@@ -110,7 +113,7 @@ class FieldConfig:
     """The representation reconstructed. ``kind="auto"`` picks the cheapest that fits
     (:func:`mi_nest.reconstruct.fields.choose_kind`), ``resolution=None`` one for the specimen's shape
     (:func:`mi_nest.reconstruct.fields.default_resolution`); ``optimize`` records what they became."""
-    kind: str = "auto"
+    kind: str = AUTO.name             # a name of kinds.KINDS, or auto
     resolution: int | None = None    # grid: nodes along the longest axis
     levels: int = 8                  # hashgrid
     features_per_level: int = 2      # hashgrid
@@ -123,8 +126,7 @@ class FieldConfig:
     seed: int = 0                    # of the networks' initial weights
 
     def __post_init__(self):
-        if self.kind not in KINDS + ("auto",):
-            raise ValueError(f"field kind must be one of {KINDS + ('auto',)}, got '{self.kind}'")
+        kind_named(self.kind)
         for name in ("levels", "features_per_level", "hashmap_size", "base_resolution", "width", "layers", "octaves"):
             whole_number(name, getattr(self, name))
         if self.resolution is not None:
@@ -266,8 +268,8 @@ class OptimizeConfig:
         for name in sorted(groups, key=lambda name: name != "field"):
             group, given = groups[name], options.get(name)
             if name == "regulariser" and given in (None, REGULARISED):
-                given = REGULARISED if self.field.kind in ("grid", "auto") else NO_REGULARISER
-            elif name == "optimiser" and self.field.kind == "mlp" and given in (None, Optimiser()):
+                given = REGULARISED if kind_named(self.field.kind).lattice else NO_REGULARISER
+            elif name == "optimiser" and self.field.kind == MLP.name and given in (None, Optimiser()):
                 given = MLP_OPTIMISER
             elif given is None:
                 given = group()
@@ -280,18 +282,19 @@ class OptimizeConfig:
         if self.optimiser.deterministic and self.schedule.time_limit is not None:
             raise ValueError("a deterministic run repeats a fixed number of iterations, and a time limit ends it "
                              "wherever the clock says: drop the time limit (--minutes) or deterministic")
-        if self.schedule.warm_start and self.model.method == "two-step":
+        if self.schedule.warm_start and self.model.method == TWO_STEP:
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")
-        if self.schedule.start is not None and self.field.kind in ("hashgrid", "mlp"):
+        lattice = kind_named(self.field.kind).lattice
+        if self.schedule.start is not None and not lattice:
             raise ValueError(f"a start field is fitted by grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or drop start)")
         if self.schedule.start is not None and self.schedule.warm_start:
             raise ValueError("'start' and 'warm_start' both say where the run starts: give one")
-        if self.field.kind in ("hashgrid", "mlp") and self.regulariser.equilibrium:
+        if not lattice and self.regulariser.equilibrium:
             raise ValueError(f"the equilibrium prior acts on grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or equilibrium=0)")
-        if self.field.kind in ("hashgrid", "mlp") and self.regulariser.acts_on_gradients():
+        if not lattice and self.regulariser.acts_on_gradients():
             # Silently ignored, a regulariser the user asked for would leave them comparing unlike runs.
             raise ValueError(f"the smoothness regulariser acts on grids only, and this field is a "
                              f"'{self.field.kind}' (give kind='grid', or drop smoothness, final_smoothness and "

@@ -27,6 +27,7 @@ from ..io.grid import grid_nodes
 from ..physics.aliasing import UNRESOLVED_SHARE
 from . import equilibrium
 from .config import DENSE_REGULARISED, REGULARISED, FieldConfig, OptimizeConfig, Regulariser
+from .kinds import AUTO, GRID, HASHGRID, KINDS, MLP
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
 
@@ -71,10 +72,10 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
     exceeds :data:`GRID_NODE_LIMIT`, where a hash grid is used. The MLP is the
     most expensive per sample and never chosen automatically.
     """
-    if config.kind != "auto":
+    if config.kind != AUTO.name:
         return config.kind
     nodes = np.prod(grid_shape(config.resolution or default_resolution(extent), extent))
-    return "grid" if nodes <= GRID_NODE_LIMIT else "hashgrid"
+    return GRID.name if nodes <= GRID_NODE_LIMIT else HASHGRID.name
 
 
 def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0) -> OptimizeConfig:
@@ -86,7 +87,7 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
     if dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     if settled.schedule.start is not None:
-        if settled.field.kind != "grid":
+        if not KINDS[settled.field.kind].lattice:
             raise ValueError(f"a start field is fitted by grids only, and a grid at {resolution} nodes would be too "
                              f"large here (auto chose '{settled.field.kind}'): give a lower --resolution")
         # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
@@ -102,7 +103,12 @@ def grid_shape(resolution: int, extent: np.ndarray) -> tuple[int, int, int]:
 
 
 class TrainableField(StressField):
-    kind = ""
+    kind = ""                   # a name of kinds.KINDS
+
+    @property
+    def lattice(self) -> bool:
+        """Whether its parameters are nodes on a lattice (:class:`~.kinds.FieldKind`)."""
+        return KINDS[self.kind].lattice
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         self.config = config
@@ -175,7 +181,7 @@ class TrainableField(StressField):
 
 class DeviatoricGrid(TrainableField):
     """Five components on a regular nodal grid over the bounding box, trilinear (a 5-channel ``mi.Texture3f``)."""
-    kind = "grid"
+    kind = GRID.name
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
@@ -334,7 +340,7 @@ class _NeuralField(TrainableField):
 
 class MLPField(_NeuralField):
     """The NeST field: sinusoidal encoding of the position, SiLU MLP, five outputs."""
-    kind = "mlp"
+    kind = MLP.name
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
@@ -353,7 +359,7 @@ class MLPField(_NeuralField):
 
 class HashGridField(_NeuralField):
     """Multi-resolution hash encoding (``drjit.nn.HashGridEncoding``) and a one-layer SiLU decoder."""
-    kind = "hashgrid"
+    kind = HASHGRID.name
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
@@ -380,19 +386,19 @@ class HashGridField(_NeuralField):
                 f"2^{int(np.log2(self.config.hashmap_size))} entries")
 
 
-REPRESENTATIONS = {"grid": DeviatoricGrid, "hashgrid": HashGridField, "mlp": MLPField}
+FIELDS = {cls.kind: cls for cls in (DeviatoricGrid, HashGridField, MLPField)}
 
 
 def make_field(config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float) -> TrainableField:
     extent = np.asarray(bbox_max) - np.asarray(bbox_min)
     config = replace(config, resolution=config.resolution or default_resolution(extent))
-    return REPRESENTATIONS[choose_kind(config, extent)](config, bbox_min, bbox_max, stress_scale)
+    return FIELDS[choose_kind(config, extent)](config, bbox_min, bbox_max, stress_scale)
 
 
 def field_from_state(state: dict) -> TrainableField:
     """Rebuild a field saved by :meth:`TrainableField.state`."""
     kind = str(state["kind"])
-    if kind not in REPRESENTATIONS:
+    if kind not in FIELDS:
         raise ValueError(f"unknown field kind '{kind}' in saved state")
     config = state["config"]
     if not isinstance(config, FieldConfig):
@@ -401,7 +407,7 @@ def field_from_state(state: dict) -> TrainableField:
                                - {f.name for f in dataclass_fields(FieldConfig)})
         config = FieldConfig(**{k: (v.item() if hasattr(v, "item") else v) for k, v in dict(config).items()
                                 if k not in regulariser_options})
-    field = REPRESENTATIONS[kind](config, state["bbox_min"], state["bbox_max"], float(state["stress_scale"]))
+    field = FIELDS[kind](config, state["bbox_min"], state["bbox_max"], float(state["stress_scale"]))
     field.load_parameters(state)
     if "mean" in state:
         field.mean = mi.TensorXf(np.asarray(state["mean"], dtype=np.float32))
@@ -410,7 +416,7 @@ def field_from_state(state: dict) -> TrainableField:
 
 def refined(field: DeviatoricGrid, resolution: int) -> DeviatoricGrid:
     """``field`` resampled onto a grid of ``resolution`` nodes along the longest axis (coarse to fine)."""
-    config = replace(field.config, kind="grid", resolution=int(resolution))
+    config = replace(field.config, kind=GRID.name, resolution=int(resolution))
     finer = DeviatoricGrid(config, field.bbox_min, field.bbox_max, field.stress_scale)
     nodes = mi.Point3f(grid_nodes(field.bbox_min, field.bbox_max, finer.shape).T.astype(np.float32))
     with dr.suspend_grad():

@@ -5,7 +5,8 @@ import mitsuba as mi
 
 from ..scene import scene_tracer
 from ..tracer import Tracer, TracerConfig
-from .config import OptimizeConfig
+from ..tracer.methods import Linear
+from .config import TWO_STEP, OptimizeConfig
 from .fields import TrainableField
 
 
@@ -17,7 +18,7 @@ def forward_step(config: OptimizeConfig, stress_field: TrainableField) -> float:
     if config.model.step_size is not None:
         return config.model.step_size
     extent = stress_field.bbox_max - stress_field.bbox_min
-    if stress_field.kind == "grid":
+    if stress_field.lattice:
         return float(0.5 * extent.max() / (max(stress_field.shape) - 1))
     return float(extent.max()) / 64.0
 
@@ -27,9 +28,9 @@ def make_tracer(config: OptimizeConfig, stress_field: TrainableField, scene: mi.
     """The tracer a reconstruction renders ``scene`` with: jittered steps (no bias from a fixed grid) of
     :func:`forward_step`, and the scene integrator's surface settings (``max_crossings``, ``max_bounces``),
     which a reconstruction keeps: the data were rendered so (a dataset simulated with ghosts is fitted with
-    them). ``method`` overrides the config's forward model."""
+    them). ``method`` overrides the config's forward model; the Two-step fits through the linear model."""
     method = method or config.model.method
     surfaces = scene_tracer(scene).config
-    return Tracer(TracerConfig(method="linear" if method == "two-step" else method,
+    return Tracer(TracerConfig(method=Linear.name if method == TWO_STEP else method,
                                step_size=forward_step(config, stress_field), jitter=True,
                                max_crossings=surfaces.max_crossings, max_bounces=surfaces.max_bounces))

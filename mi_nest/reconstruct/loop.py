@@ -29,7 +29,8 @@ from ..tracer import Tracer
 from . import equilibrium, metrics
 from .free_surface import FreeSurfacePrior
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
-from .config import OptimizeConfig
+from .config import TWO_STEP, OptimizeConfig
+from .kinds import KINDS
 from .evaluation import SampledViewLoss
 from .fields import make_field, refined
 from .forward import forward_step, make_tracer
@@ -94,7 +95,7 @@ class Run:
         self.last_good = None
         self.iterate_sums, self.iterates_averaged = {}, 0
         self.retardance = (RetardanceTargets(dataset, config.optimiser.mask)
-                           if config.model.method == "two-step" or config.schedule.warm_start else None)
+                           if config.model.method == TWO_STEP or config.schedule.warm_start else None)
         self.error_probe = None
         self.polariscopes = dataset.polariscopes()
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
@@ -106,7 +107,7 @@ class Run:
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
         resolution = self.config.field.resolution
-        if self.kind != "grid" or not self.config.schedule.coarse_to_fine:
+        if not KINDS[self.kind].lattice or not self.config.schedule.coarse_to_fine:
             return [(0.0, resolution)]
         resolutions = sorted({r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution})
         # Fine grids start coarser still: from 16 nodes the disk at 64 stuck in a wrapped minimum at 80%
@@ -154,11 +155,11 @@ class Run:
 
     def fitting_retardance(self) -> bool:
         """Whether this iteration fits the Two-step's unwrapped data (the baseline, or a warm start)."""
-        return self.config.model.method == "two-step" or self.progress() < self.config.schedule.warm_start
+        return self.config.model.method == TWO_STEP or self.progress() < self.config.schedule.warm_start
 
     def tracer(self) -> Tracer:
         """The tracer of this iteration's forward model (the Two-step's linear one while it fits retardance)."""
-        return make_tracer(self.config, self.field, self.scene, "two-step" if self.fitting_retardance() else None)
+        return make_tracer(self.config, self.field, self.scene, TWO_STEP if self.fitting_retardance() else None)
 
     def learning_rate(self) -> float:
         """Geometric decay from ``learning_rate`` to ``final_learning_rate`` over the run."""
@@ -263,7 +264,7 @@ class Run:
     def _refine_if_due(self) -> None:
         """Move to the coarse-to-fine stage the progress has reached."""
         resolution = [r for start, r in self.stages if start <= self.progress()][-1]
-        if self.field.kind != "grid" or self.field.config.resolution == resolution:
+        if not self.field.lattice or self.field.config.resolution == resolution:
             return
         self.field = refined(self.field, resolution)
         self.optimizer = self._optimizer()
@@ -300,7 +301,7 @@ class Run:
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
             # The scale is read only where it changes a weight: a grid's smoothness, relative to the field.
-            relative = regulariser.relative_to is not None and self.field.kind == "grid" \
+            relative = regulariser.relative_to is not None and self.field.lattice \
                 and (regulariser.acts_on_gradients() or bool(regulariser.equilibrium)
                      or bool(regulariser.free_surface))
             field_rms = self._field_rms() if relative else None
@@ -309,7 +310,7 @@ class Run:
             if penalty is not None:
                 total = total + penalty
             balance = None
-            if regulariser.equilibrium and self.field.kind == "grid":
+            if regulariser.equilibrium and self.field.lattice:
                 self._balance_mean()
                 balance = self.field.equilibrium_penalty(regulariser.equilibrium_at(field_rms),
                                                          self._balance.stencil)
@@ -454,7 +455,7 @@ class Run:
     def second_moment(self) -> np.ndarray | None:
         """A grid's Adam second moment (its nodes' five components, flat), the trust map's curvature; None for
         networks."""
-        if self.field.kind != "grid":
+        if not self.field.lattice:
             return None
         return adam_moments(self.optimizer)["grid"][2]
 

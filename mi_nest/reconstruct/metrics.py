@@ -80,7 +80,7 @@ def representation_floor(field: TrainableField, truth: StressField, points: np.n
     Only for grids (None otherwise): singular fields (point loads) keep even a
     perfect reconstruction far from zero error at a finite resolution.
     """
-    if getattr(field, "kind", None) != "grid":
+    if not getattr(field, "lattice", False):
         return None
     nodes = deviatoric_part(sample(truth, grid_nodes(field.bbox_min, field.bbox_max, field.shape)))
     return _grid_error(field, nodes[:, [0, 1, 3, 4, 5]] / field.stress_scale, truth, points)
@@ -91,7 +91,7 @@ def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, s
     """The deviatoric error at ``points`` of the least-squares fit of ``truth`` by a grid like ``field`` on a
     lattice ``fit_points_per_axis`` fine: the volume's best grid, near stress concentrations far better than
     the nodal values (:func:`representation_floor`). Only for grids (None otherwise)."""
-    if getattr(field, "kind", None) != "grid":
+    if not getattr(field, "lattice", False):
         return None
     return _grid_error(field, fitted_nodes(field, truth, evaluation_points(scene, shapes, fit_points_per_axis)),
                        truth, points)
@@ -102,7 +102,7 @@ def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) ->
     of ``truth`` at those very points. The error is one L2 norm over the same points, and a node's five stored
     components enter it through one positive-definite form shared by every point, so the componentwise fit
     minimises it: no optimiser of this grid scores lower (up to the solver's tolerance). Only for grids."""
-    if getattr(field, "kind", None) != "grid":
+    if not getattr(field, "lattice", False):
         return None
     return _grid_error(field, fitted_nodes(field, truth, points), truth, points)
 

@@ -50,9 +50,14 @@ class Auto:
     """``auto``: before a render, analyse the field along the light and pick ``linear`` or ``magnus4``."""
 
     name = "auto"
+    label = "linear or magnus4, chosen for the field before each render"
 
     def __init__(self, tolerance: float, jitter: bool = False):
         self.tolerance, self.jitter = tolerance, jitter
+
+    @classmethod
+    def from_options(cls, point: float, jitter: bool, tolerance: float) -> Auto:
+        return cls(tolerance, jitter)
 
     def decide(self, setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor | None, step_size: float) -> Decision:
         if sensor is None:

@@ -86,11 +86,3 @@ def refuse_refraction(setup, what: str) -> None:
         raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet (renders and "
                               "ray batches are); drop the specimens' and baths' dielectric BSDFs for index-matched "
                               "straight rays")
-
-
-def require_product_through_refraction(method) -> None:
-    """Through refracting surfaces each segment's product is differentiated inside the path's matrix: the
-    products (``product``, ``magnus4``) have that adjoint, the linear model's summed generator does not."""
-    if method.name not in ("product", "magnus4"):
-        raise SceneSetupError(f"photoelastic: gradients through refracting surfaces need 'product' or 'magnus4', "
-                              f"not '{method.name}'")

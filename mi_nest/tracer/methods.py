@@ -61,18 +61,24 @@ class Decision(NamedTuple):
 class Method:
     """A model of the ordered exponential: segments combine by products (``linear``: by a sum)."""
 
-    name = ""
+    name = ""               # the integrator's ``method`` property
+    label = ""              # what it is, for people
     # Whether every step is unitary: the adjoint replay peels steps off with conjugates.
     unitary = True
+    # Whether each segment's product can be differentiated inside a refracted path's matrix.
+    replays_bent_paths = False
+    # Whether the ``points`` property chooses where it samples each step.
+    takes_points = False
+
+    @classmethod
+    def from_options(cls, point: float, jitter: bool, tolerance: float) -> Method:
+        """The method from the integrator's ``points`` (as a fraction of the step), ``jitter`` and ``tolerance``,
+        those it uses."""
+        return cls()
 
     def decide(self, setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor | None,
                step_size: float) -> Decision:
         return Decision(self, step_size)
-
-    def require_adjoint(self) -> None:
-        if not self.unitary:
-            raise ValueError(f"photoelastic: {self.name} is not unitary, so its march cannot be replayed backwards; "
-                             "differentiate with 'product', 'magnus4' or 'linear'")
 
     def start(self) -> su2.Quaternion:
         """A ray's state before its first segment."""
@@ -110,6 +116,8 @@ class Method:
 
 class ChainMethod(Method):
     """A product of unitary per-step propagators (``product``, ``magnus4``)."""
+
+    replays_bent_paths = True
 
     def step(self, sample: StepSample) -> tuple[su2.Quaternion, Fringe]:
         """The step's propagator and ``(b, c)`` of its mean generator times its length."""
@@ -197,6 +205,10 @@ class OnePointRule:
     def __init__(self, point: float = POINTS["midpoint"], jitter: bool = False):
         self.point, self.jitter = point, jitter
 
+    @classmethod
+    def from_options(cls, point: float, jitter: bool, tolerance: float) -> OnePointRule:
+        return cls(point, jitter)
+
     def step_generator(self, sample: StepSample) -> su2.Generator:
         """The generator at the step's point times the step's length."""
         return sample.generator(sample.jittered() if self.jitter else self.point, sample.length)
@@ -206,6 +218,8 @@ class Product(OnePointRule, ChainMethod):
     """The exact exponential of the generator sampled at one point of each step."""
 
     name = "product"
+    label = "NeST-general (a product of exact steps)"
+    takes_points = True
 
     def step(self, sample: StepSample) -> tuple[su2.Quaternion, Fringe]:
         generator = self.step_generator(sample)
@@ -216,6 +230,7 @@ class Magnus4(ChainMethod):
     """The exponential of the fourth-order Magnus term: two Gauss points and their commutator."""
 
     name = "magnus4"
+    label = "4th-order Magnus steps"
 
     def step(self, sample: StepSample) -> tuple[su2.Quaternion, Fringe]:
         first, second = (sample.generator(g) for g in GAUSS_POINTS)
@@ -228,6 +243,7 @@ class Linear(OnePointRule, Method):
     """The generator summed along the ray (one point per step), exponentiated once: exact when steps commute."""
 
     name = "linear"
+    label = "NeST-approx (the linear model)"
 
     def step(self, sample: StepSample) -> tuple[su2.Generator, Fringe]:
         """The step's share of the summed generator, and its ``(b, c)``."""
@@ -276,6 +292,7 @@ class RK4(Method):
     """
 
     name = "rk4"
+    label = "classical Runge-Kutta (not unitary)"
     unitary = False
 
     def advance(self, k: su2.Quaternion, sample: StepSample) -> tuple[su2.Quaternion, Fringe]:

@@ -24,7 +24,7 @@ from . import auto, guards, refraction
 from .film import CHANNELS, UNDIFFERENTIATED
 from .methods import Decision, Method
 from .segment import Segment, equal_steps
-from .registry import method_named
+from .registry import method_named, require_adjoint, require_replay_through_refraction
 from .setup import SceneSetup
 from .walk import past_panel, walk
 
@@ -196,9 +196,9 @@ class Tracer:
         with dr.suspend_grad():
             plan = self.plan(scene, None, right, field, step_size=step_size)
             method = plan.decision.method
-            method.require_adjoint()
+            require_adjoint(method)
             if plan.setup.refracting:
-                guards.require_product_through_refraction(method)
+                require_replay_through_refraction(method)
                 total, grad = (tuple(mi.Float(x) for x in values) for values in (traced.state, state_grad))
                 dr.make_opaque(total, grad)
                 count = dr.width(rays.o)
