@@ -4,10 +4,12 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeCameraPart
 
-from .properties import angle_property
+from mi_nest.physics.polariscope import Polarizer, Waveplate
+
+from .properties import angle_property, optics_property
 
 _PROJECTIONS = ("orthographic", "perspective")
-_OWN_PROPERTIES = ("projection", "analyzer", "qwp")
+_OWN_PROPERTIES = ("projection", "analyzer", "qwp", "optics")
 
 
 class PolariscopeCamera(mi.Sensor):
@@ -36,6 +38,13 @@ class PolariscopeCamera(mi.Sensor):
        - Fast axis beta_2 of the camera-side quarter-wave plate QWP2 in degrees;
          leave out for a plane polariscope. (Default: none)
 
+     * - optics
+       - |string|
+       - Instead of ``qwp`` and ``analyzer``: the elements between the specimen
+         and the camera in the order the light meets them, written as the
+         ``polariscope_light``'s ``optics`` (e.g. ``"compensator 45 360 0.25;
+         polarizer 0"``); empty for none. (Default: none)
+
     The camera half of the polariscope. With the ``polariscope_light`` emitter it
     defines the main channel of the ``photoelastic`` integrator.
 
@@ -61,8 +70,11 @@ class PolariscopeCamera(mi.Sensor):
         if projection not in _PROJECTIONS:
             raise ValueError(f"polariscope: unknown projection '{projection}'; choose one of {_PROJECTIONS}")
         self.projection = projection
-        self.analyzer = angle_property(props, "analyzer", 0.0)
-        self.qwp = angle_property(props, "qwp", None)
+        self.optics = optics_property(props, "optics", "polariscope", ("analyzer", "qwp"))
+        if self.optics is None:
+            analyzer, qwp = angle_property(props, "analyzer", 0.0), angle_property(props, "qwp", None)
+            self.optics = ((() if qwp is None else (Waveplate(qwp),))
+                           + (() if analyzer is None else (Polarizer(analyzer),)))
         camera = {key: props[key] for key in props.keys()
                   if key not in _OWN_PROPERTIES and not isinstance(props[key], (mi.Film, mi.Sampler))}
         camera.update(type=projection, film=self.film(), sampler=self.sampler())
@@ -80,8 +92,8 @@ class PolariscopeCamera(mi.Sensor):
         return self.camera.world_transform()
 
     def to_string(self) -> str:
-        return (f"PolariscopeCamera[projection={self.projection}, qwp={self.qwp}, "
-                f"analyzer={self.analyzer}]")
+        optics = "; ".join(element.describe() for element in self.optics)
+        return f"PolariscopeCamera[projection={self.projection}, optics={optics}]"
 
 
 PolariscopeCameraPart.register(PolariscopeCamera)

@@ -6,7 +6,9 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeLightPart
 
-from .properties import angle_property
+from mi_nest.physics.polariscope import Polarizer, Waveplate
+
+from .properties import angle_property, optics_property
 
 
 class PolariscopeLight(mi.Emitter):
@@ -27,6 +29,16 @@ class PolariscopeLight(mi.Emitter):
        - |float|
        - Fast axis beta_1 of the source-side quarter-wave plate QWP1 in degrees;
          leave out for a plane polariscope. (Default: none)
+
+     * - optics
+       - |string|
+       - Instead of ``polarizer`` and ``qwp``: the elements between the panel and
+         the specimen in the order the light meets them, a polariser first,
+         e.g. ``"polarizer 90; hwp 22.5; qwp 45"``; each element is ``polarizer
+         ANGLE``, ``qwp ANGLE``, ``hwp ANGLE``, ``waveplate ANGLE RETARDANCE``
+         or ``compensator ANGLE RATE POSITION`` (a Babinet-Soleil compensator:
+         RATE degrees of retardance per mm of its micrometer, at POSITION mm),
+         angles and retardances in degrees. (Default: none)
 
      * - radiance
        - |float|
@@ -63,8 +75,14 @@ class PolariscopeLight(mi.Emitter):
 
     def __init__(self, props):
         super().__init__(props)
-        self.polarizer = angle_property(props, "polarizer", 90.0)
-        self.qwp = angle_property(props, "qwp", None)
+        self.optics = optics_property(props, "optics", "polariscope_light", ("polarizer", "qwp"))
+        if self.optics is None:
+            polarizer, qwp = angle_property(props, "polarizer", 90.0), angle_property(props, "qwp", None)
+            self.optics = (Polarizer(polarizer),) + (() if qwp is None else (Waveplate(qwp),))
+        elif not isinstance(self.optics[0], Polarizer):
+            raise ValueError(f"polariscope_light: 'optics' starts with the panel's polariser, got "
+                             f"'{props['optics']}'")
+        self.polarizer = self.optics[0].angle       # the panel's polariser, which datasets record
         self.radiance = float(props.get("radiance", 1.0))
         if not (math.isfinite(self.radiance) and self.radiance >= 0):
             raise ValueError(f"polariscope_light: 'radiance' must be finite and >= 0, got {self.radiance}")
@@ -74,7 +92,8 @@ class PolariscopeLight(mi.Emitter):
 
     def to_string(self) -> str:
         panel = "" if self.size is None else f", size={self.size}, distance={self.distance}"
-        return f"PolariscopeLight[polarizer={self.polarizer}, qwp={self.qwp}, radiance={self.radiance}{panel}]"
+        optics = "; ".join(element.describe() for element in self.optics)
+        return f"PolariscopeLight[optics={optics}, radiance={self.radiance}{panel}]"
 
 
 def _optional_length(props, name, default):

@@ -40,8 +40,9 @@ def box(size, center=(0.0, 0.0, 0.0), interior=None):
 def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, output_qwp=None,
           analyzer=0.0, origin=(0.0, 0.0, 100.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0),
           projection="orthographic", fov=20.0, jitter=False, spp=1, sampler="stratified",
-          pixel_format="luminance", **integrator):
-    """A photoelastic scene; the default camera looks down -z (image right +x, up +y)."""
+          pixel_format="luminance", light_optics=None, camera_optics=None, **integrator):
+    """A photoelastic scene; the default camera looks down -z (image right +x, up +y). ``light_optics`` and
+    ``camera_optics`` (the plugins' ``optics`` strings) replace the polariser and waveplate and the analyser."""
     light = {"type": "polariscope_light", "polarizer": polarizer}
     if input_qwp is not None:
         light["qwp"] = input_qwp
@@ -60,6 +61,11 @@ def scene(shapes, *, res=4, view=5.0, step=0.5, polarizer=90.0, input_qwp=None, 
         sensor["analyzer"] = analyzer
     if output_qwp is not None:
         sensor["qwp"] = output_qwp
+    if light_optics is not None:
+        light = {"type": "polariscope_light", "optics": light_optics}
+    if camera_optics is not None:
+        sensor = {key: value for key, value in sensor.items() if key not in ("analyzer", "qwp")}
+        sensor["optics"] = camera_optics
     description = {"type": "scene", "embree_use_robust_intersections": True,
                    "integrator": {"type": "photoelastic", "step_size": step, "jitter": jitter, **integrator},
                    "light": light, "sensor": sensor}

@@ -32,7 +32,7 @@ import pytest
 
 import mi_nest  # noqa: F401  (selects the variant, registers the plugins)
 from mi_nest.physics import su2
-from mi_nest.physics.polariscope import Polariscope, linear_polarizer, quarter_wave_plate, waveplate
+from mi_nest.physics.polariscope import linear_polarizer, standard_polariscope, quarter_wave_plate, waveplate
 
 from scenes import BREWSTER, WAVELENGTH, box, medium, render
 
@@ -121,7 +121,7 @@ def test_the_renderer_shows_the_sign_of_the_stress_through_a_circular_analyser()
         slab = box((20.0, 20.0, SLAB_LENGTH), interior=medium(xx=sigma))
         channels = render([slab], polarizer=45.0, output_qwp=0.0, analyzer=45.0, step=0.25)
         intensities[name] = float(np.mean(channels["Y"]))
-        scope = Polariscope(45.0, None, 0.0, 45.0)
+        scope = standard_polariscope(45.0, None, 0.0, 45.0)
         q = su2.from_matrix(stress_step(sigma, 0.0, 0.0))
         assert intensities[name] == pytest.approx(float(scope.intensity(q)), abs=1e-4)
     assert intensities["tension"] == pytest.approx(1.0, abs=1e-4)

@@ -1,4 +1,6 @@
 """The pure math against NumPy/SciPy: exponentials, products, invariants, polariscope."""
+import itertools
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -7,7 +9,9 @@ from scipy.linalg import expm
 
 import mi_nest  # noqa: F401
 from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
-from mi_nest.physics.polariscope import linear_polarizer, quarter_wave_plate, rotation
+from mi_nest.physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, Compensator, Polarizer,
+                                         Waveplate, half_wave_plate, linear_polarizer, parse_optics,
+                                         quarter_wave_plate, rotation, standard_polariscope)
 
 SIGMA_X = np.array([[0, 1], [1, 0]])
 SIGMA_Z = np.array([[1, 0], [0, -1]])
@@ -167,10 +171,12 @@ def test_polariscope_elements():
 def test_sixteen_intensities_match_direct_jones_calculus():
     q = random_quaternions(50)
     J = su2.to_matrix(q)
-    for name, scope in MEASUREMENTS.items():
+    settings = itertools.product(INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, ANALYZERS)
+    for (b1, b2, a2), (name, scope) in zip(settings, MEASUREMENTS.items()):
+        assert name == f"pol.{b1}.{b2}.{a2}"
         expected = np.sum(np.abs(np.einsum("ij,njk,k->ni", scope.output_rows(), J, scope.input_state())) ** 2, axis=1)
-        direct = np.array([np.abs(linear_polarizer(scope.analyzer) @ quarter_wave_plate(scope.output_qwp) @ J[i]
-                                  @ quarter_wave_plate(scope.input_qwp) @ np.array([0, 1])) ** 2
+        direct = np.array([np.abs(linear_polarizer(a2) @ quarter_wave_plate(b2) @ J[i]
+                                  @ quarter_wave_plate(b1) @ np.array([0, 1])) ** 2
                            for i in range(50)]).sum(axis=1)
         np.testing.assert_allclose(scope.intensity(q), expected, atol=1e-12, err_msg=name)
         np.testing.assert_allclose(scope.intensity(q), direct, atol=1e-12, err_msg=name)
@@ -179,12 +185,12 @@ def test_sixteen_intensities_match_direct_jones_calculus():
 
 def test_free_space_and_dark_field_closed_forms():
     free = su2.identity(np.zeros(1))
-    assert Polariscope(90, None, None, 90).intensity(free) == pytest.approx(1.0)
-    assert Polariscope(90, None, None, 0).intensity(free) == pytest.approx(0.0)
-    assert Polariscope(90).intensity(free) == pytest.approx(1.0)   # no analyser: lossless
+    assert standard_polariscope(90, None, None, 90).intensity(free) == pytest.approx(1.0)
+    assert standard_polariscope(90, None, None, 0).intensity(free) == pytest.approx(0.0)
+    assert standard_polariscope(90).intensity(free) == pytest.approx(1.0)   # no analyser: lossless
     delta = rng.uniform(0, 4 * np.pi, 100)
     q = su2.multiply(su2.rotator(rng.uniform(-1, 1, 100)), su2.retarder(delta, rng.uniform(0, 3, 100)))
-    dark_field = Polariscope(90, 45, 135, 0)
+    dark_field = standard_polariscope(90, 45, 135, 0)
     np.testing.assert_allclose(dark_field.intensity(q), np.sin(delta / 2) ** 2, atol=1e-12)
 
 
@@ -205,6 +211,76 @@ def test_the_textbook_polariscopes_give_their_closed_forms(angle):
         for i in range(3):
             amplitude = scope.matrix(su2.to_matrix(tuple(x[i] for x in q)))
             assert abs(np.sum(np.abs(amplitude) ** 2) - expected[i]) < 1e-12
-    assert polariscope_setting() == Polariscope(90.0, 45.0, 135.0, 0.0)    # the shipped scenes'
+    assert polariscope_setting() == standard_polariscope(90.0, 45.0, 135.0, 0.0)    # the shipped scenes'
     with pytest.raises(ValueError, match="choose one of circular, linear"):
         polariscope_setting("elliptic")
+
+
+def test_a_half_wave_plate_mirrors_linear_light_about_its_fast_axis():
+    """Linear light at ``a`` leaves a half-wave plate at ``h`` linear at ``2h - a``: behind an analyser at ``b``,
+    ``cos^2(2h - a - b)`` (Hecht, section 8.7), through free space and through a specimen seen by the rig."""
+    rng = np.random.default_rng(5)
+    free = su2.identity(np.zeros(1))
+    for a, h, b in rng.uniform(-180, 180, (20, 3)):
+        scope = Polariscope((Polarizer(a), half_wave_plate(h)), (Polarizer(b),))
+        expected = np.cos(np.radians(2 * h - a - b)) ** 2
+        assert float(scope.intensity(free)[0]) == pytest.approx(expected, abs=1e-12)
+    # A half-wave plate at 22.5 degrees turns the rig's polariser from 90 to -45: the same as a polariser there.
+    q = random_quaternions(30)
+    turned = Polariscope((Polarizer(90.0), half_wave_plate(22.5), Waveplate(45.0)), (Waveplate(0.0), Polarizer(45.0)))
+    direct = standard_polariscope(-45.0, 45.0, 0.0, 45.0)
+    np.testing.assert_allclose(turned.intensity(q), direct.intensity(q), atol=1e-12)
+
+
+def test_a_babinet_soleil_compensator_cancels_the_retardance_it_is_set_to():
+    """Crossed polarisers at 45 degrees to a retarder's axes; a compensator with its fast axis along the
+    retarder's slow axis at retardance ``c``: ``I = sin^2((delta - c) / 2)``, dark where it cancels the
+    specimen (the compensation method: the position that darkens a point reads its fringe order)."""
+    rng = np.random.default_rng(6)
+    delta, theta = rng.uniform(0, 4 * np.pi, 50), rng.uniform(0, np.pi, 50)
+    rate, positions = 360.0, rng.uniform(0, 2, 50)         # degrees per mm, mm
+    for d, t, x in zip(delta, theta, positions):
+        # su2.retarder's angle is sigma_1's, the slow axis (docs/physics.md): the compensator's fast axis there.
+        q = su2.retarder(np.array([d]), np.array([t]))
+        fast = np.degrees(t)
+        scope = Polariscope((Polarizer(fast + 45.0),), (Compensator(fast, rate, x), Polarizer(fast - 45.0)))
+        expected = np.sin((d - np.radians(rate * x)) / 2) ** 2
+        assert float(scope.intensity(q)[0]) == pytest.approx(expected, abs=1e-12)
+    # Set to the specimen's retardance, it extinguishes: the reading is the fringe order, fractions included.
+    q = su2.retarder(np.array([2.6 * 2 * np.pi]), np.array([0.3]))
+    reading = Compensator(np.degrees(0.3), rate, 2.6)
+    nulled = Polariscope((Polarizer(np.degrees(0.3) + 45.0),), (reading, Polarizer(np.degrees(0.3) - 45.0)))
+    assert reading.retardance == pytest.approx(360.0 * 2.6) and float(nulled.intensity(q)[0]) < 1e-20
+
+
+def test_any_ordered_optics_give_the_direct_jones_product():
+    """Elements in any order, a polariser between others included (its two-row projector), against the product
+    of their Jones matrices."""
+    q = random_quaternions(20)
+    J = su2.to_matrix(q)
+    light = (Polarizer(10.0), Waveplate(30.0, 75.0), half_wave_plate(-20.0))
+    camera = (Compensator(50.0, 200.0, 0.3), Polarizer(70.0), Waveplate(15.0, 120.0))
+    scope = Polariscope(light, camera)
+    e = linear_polarizer(10.0)[:, 0] / np.cos(np.radians(10.0))           # the unit state behind the polariser
+    for element in light[1:]:
+        e = element.matrix() @ e
+    after = np.eye(2)
+    for element in camera:
+        after = element.matrix() @ after
+    direct = np.sum(np.abs(np.einsum("ij,njk,k->ni", after, J, e)) ** 2, axis=1)
+    np.testing.assert_allclose(scope.intensity(q), direct, atol=1e-12)
+    assert parse_optics(scope.describe().split(" | ")[2]) == camera         # what describe() writes reads back
+
+
+def test_optics_read_from_text_and_refuse_what_is_not_an_element():
+    assert parse_optics("polarizer 90; hwp 22.5;qwp 45 ; waveplate 30 120; compensator 45 360 0.5") == (
+        Polarizer(90.0), Waveplate(22.5, 180.0), Waveplate(45.0, 90.0), Waveplate(30.0, 120.0),
+        Compensator(45.0, 360.0, 0.5))
+    assert parse_optics("") == ()
+    for text, message in (("lens 3", "unknown optical element 'lens'"), ("hwp", "hwp takes angle"),
+                          ("qwp 1 2 3", "qwp takes angle retardance"), ("polarizer x", "takes numbers"),
+                          ("polarizer nan", "must be finite")):
+        with pytest.raises(ValueError, match=message):
+            parse_optics(text)
+    with pytest.raises(ValueError, match="starts with its polariser"):
+        Polariscope((Waveplate(45.0),), ())

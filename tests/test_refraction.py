@@ -15,6 +15,7 @@ import mi_nest
 from mi_nest.physics import MEASUREMENTS, interface, jones
 from mi_nest.tracer import PathKind
 from mi_nest.tracer.guards import SceneSetupError
+from test_independent_renderer import MEASUREMENTS as INDEPENDENT_SCOPES
 from test_independent_renderer import mitsuba_stack
 
 REFERENCE_SCRIPT = Path(__file__).with_name("polarized_reference.py")
@@ -254,7 +255,7 @@ def test_a_tilted_glass_block_matches_mitsubas_polarised_dielectric(tmp_path):
     tilt = 30.0
     block = {"type": "block", "int_ior": N, "tilt": tilt, "half_thickness": 2.0}
     requests = {"free_space": [{"type": "polarizer", "theta": 90.0}, {"type": "polarizer", "theta": 90.0}]}
-    for name, scope in MEASUREMENTS.items():
+    for name, scope in INDEPENDENT_SCOPES.items():
         stack = mitsuba_stack(scope, [])
         stack.insert(1 + (scope.input_qwp is not None), block)
         requests[name] = stack

@@ -270,3 +270,40 @@ def test_specimens_sharing_a_face_are_both_traversed(order):
     expected = su2.multiply(su2.step(1.5, 0.0, PHASE_RATE * 2.0), su2.step(0.0, 1.6, PHASE_RATE * 3.0))
     for name, value in zip(("jones.a", "jones.b", "jones.c", "jones.d"), expected):
         np.testing.assert_allclose(channels[name], value, atol=2e-5, err_msg=name)
+
+
+def test_a_scenes_optics_put_any_elements_in_the_polariscope():
+    """The light's and the camera's ``optics``: a half-wave plate at 22.5 degrees turns the panel's polariser
+    from 0 to 45 degrees (free space through an analyser at 45 then passes everything, at 135 nothing), and a
+    Babinet-Soleil compensator along a slab's slow axis, set to the slab's retardance, brings it to extinction
+    between crossed polarisers at 45 degrees (sin^2((delta - c) / 2) elsewhere)."""
+    free = [box((2, 2, 2), center=(30, 0, 0), interior=medium(xx=0.0))]      # a specimen out of view
+    for analyzer, expected in ((45.0, 1.0), (135.0, 0.0)):
+        with pytest.warns(RuntimeWarning, match="sees no specimen"):
+            channels = render(free, light_optics="polarizer 0; hwp 22.5", analyzer=analyzer)
+        np.testing.assert_allclose(channels["Y"], expected, atol=1e-6)
+    slab = [box((20, 20, 4), interior=medium(xx=1.0))]          # sigma_1 along x: the slow axis (C > 0)
+    own = render(slab)
+    delta = float(np.mean(own["char.delta"]))                   # under pi: the characteristic angle is the axis
+    assert np.abs(own["char.theta"]).max() < 1e-6
+    rate = 360.0
+    for position in (0.0, np.degrees(delta) / rate, 0.5 * np.degrees(delta) / rate):
+        channels = render(slab, light_optics="polarizer 45", camera_optics=f"compensator 0 {rate} {position}; "
+                                                                            "polarizer -45")
+        expected = np.sin((delta - np.radians(rate * position)) / 2) ** 2
+        np.testing.assert_allclose(channels["Y"], expected, atol=1e-5)
+    assert 0.5 < delta < 3.0
+
+
+@pytest.mark.parametrize("plugin, optics, message", [
+    ("light", {"optics": "qwp 45", "polarizer": None}, "starts with the panel's polariser"),
+    ("light", {"optics": "polarizer 0", "polarizer": 90.0}, "leave out 'polarizer'"),
+    ("sensor", {"optics": "polarizer 0", "analyzer": 0.0}, "leave out 'analyzer'"),
+    ("sensor", {"optics": "lens 2"}, "unknown optical element 'lens'")])
+def test_optics_that_are_not_a_polariscope_are_refused(plugin, optics, message):
+    light = {"type": "polariscope_light"}
+    sensor = {"type": "polariscope", "film": {"type": "hdrfilm", "width": 2, "height": 2}}
+    part = light if plugin == "light" else sensor
+    part.update({key: value for key, value in optics.items() if value is not None})
+    with pytest.raises(Exception, match=message):
+        mi.load_dict({"type": "scene", "integrator": {"type": "photoelastic"}, "light": light, "sensor": sensor})

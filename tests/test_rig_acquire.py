@@ -264,7 +264,8 @@ def test_a_calibrated_capture_is_read_through_the_polariscope_as_built(tmp_path)
     acquire(load(path), tmp_path / "capture", progress=False)
     dataset = mi_nest.Dataset(tmp_path / "capture")
     scope = dataset.polariscopes()[dataset.channels.index("pol.45.0.45")]
-    assert scope.analyzer == pytest.approx(48.0, abs=0.05) and scope.output_retardance == pytest.approx(96.0, abs=0.1)
+    qwp2, analyzer = scope.camera
+    assert analyzer.angle == pytest.approx(48.0, abs=0.05) and qwp2.retardance == pytest.approx(96.0, abs=0.1)
 
     def background_error():
         """Per channel, the median error over background pixels (some at the rim see the specimen)."""

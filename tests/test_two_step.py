@@ -53,10 +53,11 @@ def test_the_sixteen_intensities_give_back_the_jones_quaternion():
 def test_a_calibrated_polariscope_is_inverted_as_built():
     """Waveplates of 88 and 92 degrees and an analyser 0.4 degrees off: the nominal model is biased, the
     calibrated one exact."""
-    from dataclasses import replace
+    from mi_nest.physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER,
+                                             standard_polariscope)
     q = _random_quaternions(2000)
-    built = [replace(s, analyzer=s.analyzer + 0.4, input_retardance=88.0, output_retardance=92.0)
-             for s in MEASUREMENTS.values()]
+    built = [standard_polariscope(POLARIZER, b1, b2, a2 + 0.4, 88.0, 92.0)
+             for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS for a2 in ANALYZERS]
     measured = np.stack([s.intensity(tuple(q.T)) for s in built], -1)
     assert _same_up_to_sign(quaternion_from_intensities(measured, built), q).max() < 1e-10
     assert _same_up_to_sign(quaternion_from_intensities(measured), q).max() > 1e-4

@@ -14,15 +14,13 @@ from collections.abc import Sequence
 from dataclasses import replace
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..physics import MEASUREMENTS
+from ..physics.polariscope import Polariscope, Polarizer, Waveplate
 from . import format as fmt
 
-if TYPE_CHECKING:
-    from ..physics.polariscope import Polariscope
 
 
 # The least memory the decoded views may hold by default; they may take half of what is free.
@@ -130,9 +128,8 @@ class Dataset:
         scopes = [MEASUREMENTS[name] for name in self.channels]
         if not calibration:
             return tuple(scopes)
-        return tuple(replace(scope, analyzer=scope.analyzer + calibration["analyzer_offset"],
-                             input_retardance=calibration["qwp1_retardance"],
-                             output_retardance=calibration["qwp2_retardance"]) for scope in scopes)
+        return tuple(_calibrated(scope, calibration["analyzer_offset"], calibration["qwp1_retardance"],
+                                 calibration["qwp2_retardance"]) for scope in scopes)
 
     def to_world(self, position: int) -> np.ndarray:
         """The 4x4 camera-to-world matrix of rotation ``position`` (the camera turned about the specimen)."""
@@ -235,3 +232,14 @@ class Dataset:
         targets = np.concatenate([view.measured_pixels[p] for view, p in zip(decoded, picked)])
         rows, columns = np.divmod(np.concatenate(picked), self.resolution[0])
         return np.repeat(positions, counts), rows, columns, targets
+
+
+def _calibrated(scope: Polariscope, analyzer_offset: float, input_retardance: float,
+                output_retardance: float) -> Polariscope:
+    """The rig's ``scope`` as calibrated: its analyser (the camera's polariser) turned by ``analyzer_offset``, its
+    waveplates' retardances the fitted ones (the light's QWP1, the camera's QWP2)."""
+    light = tuple(replace(e, retardance=input_retardance) if isinstance(e, Waveplate) else e for e in scope.light)
+    camera = tuple(replace(e, retardance=output_retardance) if isinstance(e, Waveplate)
+                   else replace(e, angle=e.angle + analyzer_offset) if isinstance(e, Polarizer) else e
+                   for e in scope.camera)
+    return Polariscope(light, camera)

@@ -17,15 +17,15 @@ import numpy as np
 from scipy.ndimage import binary_fill_holes
 
 from ..physics import su2
-from ..physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER, Polariscope,
-                                  measurement_name)
+from ..physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER, measurement_name,
+                                  standard_polariscope)
 
 
 def linear_settings() -> list[tuple[int, int]]:
     """The (b1, b2) settings whose free-space output is linearly polarised."""
     identity = su2.identity(np.zeros(1))
     return [(b1, b2) for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS
-            if dolp([Polariscope(POLARIZER, b1, b2, a).intensity(identity) for a in ANALYZERS])[0] > 0.999]
+            if dolp([standard_polariscope(POLARIZER, b1, b2, a).intensity(identity) for a in ANALYZERS])[0] > 0.999]
 
 
 def dolp(by_analyser: Sequence[np.ndarray]) -> np.ndarray:

@@ -1,7 +1,10 @@
 """Polariscope optics and the 16 multi-axis measurements (docs/physics.md sections 1 and 6).
 
-Light source -> linear polariser (alpha_1) -> optional QWP (beta_1) -> specimen J
--> optional QWP (beta_2) -> optional analyser (alpha_2). Angles are degrees in
+A polariscope is the ordered optics on either side of the specimen J: the
+light's (a polariser, then any waveplates, half-wave plates or compensators)
+and the camera's (any of them, usually ending in an analyser). The rig's is
+linear polariser (alpha_1) -> optional QWP (beta_1) -> specimen J -> optional
+QWP (beta_2) -> optional analyser (alpha_2). Angles are degrees in
 the transverse (u, v) plane, from u (image right) towards v (image up):
 counter-clockwise for an observer looking toward the source. Fields vary as
 ``exp(+i omega t)``, so a phase lag is a negative phase and a waveplate's fast
@@ -15,9 +18,10 @@ a handful of multiply-adds per ray for any polariscope.
 """
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -60,33 +64,136 @@ def quarter_wave_plate(beta_deg: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Polariscope:
-    """One polariscope configuration; ``None`` means the element is absent.
+class Polarizer:
+    """A linear polariser transmitting along ``angle`` (degrees)."""
+    angle: float
 
-    The retardances (degrees) of the two waveplates are 90 for ideal QWPs;
-    calibration fits the real ones.
-    """
-    polarizer: float = 90.0
-    input_qwp: Optional[float] = None
-    output_qwp: Optional[float] = None
-    analyzer: Optional[float] = None
-    input_retardance: float = 90.0
-    output_retardance: float = 90.0
+    def matrix(self) -> np.ndarray:
+        return linear_polarizer(self.angle)
+
+    def describe(self) -> str:
+        return f"polarizer {self.angle:g}"
+
+
+@dataclass(frozen=True)
+class Waveplate:
+    """A linear retarder: fast axis at ``angle``, the slow component lagging by ``retardance`` (degrees): 90 a
+    quarter-wave plate, 180 a half-wave plate."""
+    angle: float
+    retardance: float = 90.0
+
+    def matrix(self) -> np.ndarray:
+        return waveplate(self.angle, self.retardance)
+
+    def describe(self) -> str:
+        return f"waveplate {self.angle:g} {self.retardance:g}"
+
+
+@dataclass(frozen=True)
+class Compensator:
+    """A Babinet-Soleil compensator: two quartz wedges and a plate whose retardance, uniform across the aperture,
+    is set by a micrometer as ``rate`` (degrees of retardance per mm) times ``position`` (mm from zero); its
+    fast axis at ``angle``. Turned against a specimen's axes it cancels the specimen's retardance: the
+    position that brings a point to extinction measures its fringe order, fractions included. (A plain Babinet
+    has the same wedges without the plate: its retardance varies across the aperture, and at any one point it
+    is this.)"""
+    angle: float
+    rate: float
+    position: float = 0.0
+
+    @property
+    def retardance(self) -> float:
+        return self.rate * self.position
+
+    def matrix(self) -> np.ndarray:
+        return waveplate(self.angle, self.retardance)
+
+    def describe(self) -> str:
+        return f"compensator {self.angle:g} {self.rate:g} {self.position:g}"
+
+
+Element = Polarizer | Waveplate | Compensator
+
+
+def half_wave_plate(angle: float) -> Waveplate:
+    """A half-wave plate with fast axis at ``angle``: it mirrors linear polarisation about its axis."""
+    return Waveplate(angle, 180.0)
+
+
+# Each element by the name a scene's ``optics`` property gives it, with the numbers it takes.
+ELEMENTS = {"polarizer": Polarizer, "waveplate": Waveplate, "qwp": Waveplate, "hwp": half_wave_plate,
+            "compensator": Compensator}
+
+
+def parse_optics(text: str) -> tuple[Element, ...]:
+    """Elements from ``"polarizer 90; qwp 45; hwp 22.5; waveplate 30 120; compensator 45 360 0.5"``: a name of
+    :data:`ELEMENTS` and its numbers (degrees, and a compensator's degrees per mm and mm), in the order the
+    light meets them."""
+    elements = []
+    for part in (p.strip() for p in text.split(";")):
+        if not part:
+            continue
+        name, *numbers = part.split()
+        if name not in ELEMENTS:
+            raise ValueError(f"unknown optical element '{name}' in '{text}'; choose one of {', '.join(ELEMENTS)}")
+        try:
+            values = [float(x) for x in numbers]
+        except ValueError:
+            raise ValueError(f"'{part}': an optical element takes numbers (degrees), got {numbers}") from None
+        if not all(np.isfinite(values)):
+            raise ValueError(f"'{part}': the numbers must be finite")
+        try:
+            elements.append(ELEMENTS[name](*values))
+        except TypeError:
+            raise ValueError(f"'{part}': {name} takes {_arguments(ELEMENTS[name])}") from None
+    return tuple(elements)
+
+
+def _arguments(make) -> str:
+    return " ".join(inspect.signature(make).parameters)
+
+
+@dataclass(frozen=True)
+class Polariscope:
+    """The optics on either side of the specimen, each an ordered tuple of elements in the order the light meets
+    them: ``light`` from the panel's polariser to the specimen (it starts with a :class:`Polarizer`: the panel's
+    unpolarised light is normalised to a unit state behind it), ``camera`` from the specimen to the camera (an
+    empty one is lossless: the camera sees all the light). :func:`standard_polariscope` builds the usual
+    polariser, quarter-wave plate | specimen | quarter-wave plate, analyser."""
+    light: tuple[Element, ...] = (Polarizer(90.0),)
+    camera: tuple[Element, ...] = ()
+
+    def __post_init__(self):
+        if not self.light or not isinstance(self.light[0], Polarizer):
+            raise ValueError(f"a polariscope's light side starts with its polariser, got {self.light}")
+        for element in self.light + self.camera:
+            if not isinstance(element, (Polarizer, Waveplate, Compensator)):
+                raise TypeError(f"{element!r} is not an optical element (Polarizer, Waveplate, Compensator)")
 
     def input_state(self) -> np.ndarray:
-        t = np.deg2rad(self.polarizer)
+        t = np.deg2rad(self.light[0].angle)
         e = np.array([np.cos(t), np.sin(t)], dtype=np.complex128)
-        return e if self.input_qwp is None else waveplate(self.input_qwp, self.input_retardance) @ e
+        for element in self.light[1:]:
+            e = element.matrix() @ e
+        return e
 
     def output_rows(self) -> np.ndarray:
-        """Rows ``w^T`` whose squared amplitudes add up to the detected intensity."""
-        rows = np.eye(2, dtype=np.complex128)
-        if self.output_qwp is not None:
-            rows = rows @ waveplate(self.output_qwp, self.output_retardance)
-        if self.analyzer is not None:
-            t = np.deg2rad(self.analyzer)
-            rows = np.array([[np.cos(t), np.sin(t)]]) @ rows
+        """Rows ``w^T`` whose squared amplitudes add up to the detected intensity: one behind a final polariser
+        (its transmission axis), two without one."""
+        camera = list(self.camera)
+        if camera and isinstance(camera[-1], Polarizer):
+            t = np.deg2rad(camera.pop().angle)
+            rows = np.array([[np.cos(t), np.sin(t)]], dtype=np.complex128)
+        else:
+            rows = np.eye(2, dtype=np.complex128)
+        for element in reversed(camera):
+            rows = rows @ element.matrix()
         return rows
+
+    def describe(self) -> str:
+        """``light | specimen | camera``, each element as :func:`parse_optics` reads it."""
+        return " | ".join(["; ".join(e.describe() for e in self.light), "specimen",
+                           "; ".join(e.describe() for e in self.camera) or "(no analyser)"])
 
     def coefficients(self) -> tuple[tuple[tuple[float, ...], tuple[float, ...]], ...]:
         """Per output row, the real and imaginary parts of ``kappa`` as float tuples."""
@@ -111,6 +218,18 @@ class Polariscope:
         """Full system matrix for a Jones matrix ``J`` (NumPy; used by tests and calibration)."""
         system = J @ (self.input_state()[:, None])
         return self.output_rows() @ system
+
+
+def standard_polariscope(polarizer: float = 90.0, input_qwp: float | None = None, output_qwp: float | None = None,
+                         analyzer: float | None = None, input_retardance: float = 90.0,
+                         output_retardance: float = 90.0) -> Polariscope:
+    """Polariser ``alpha_1``, quarter-wave plate ``beta_1`` | specimen | quarter-wave plate ``beta_2``, analyser
+    ``alpha_2`` (degrees; ``None``: the element is absent): the rig's polariscope. The retardances of the two
+    waveplates are 90 for ideal quarter-wave plates; calibration fits the real ones."""
+    light = (Polarizer(polarizer),) + (() if input_qwp is None else (Waveplate(input_qwp, input_retardance),))
+    camera = ((() if output_qwp is None else (Waveplate(output_qwp, output_retardance),))
+              + (() if analyzer is None else (Polarizer(analyzer),)))
+    return Polariscope(light, camera)
 
 
 def _zero(k) -> bool:
@@ -144,7 +263,7 @@ ANALYZERS = (0, 45, 90, 135)
 
 # The 16 measurements: beta_1 x beta_2 x alpha_2, in this order.
 MEASUREMENTS = {
-    measurement_name(b1, b2, a2): Polariscope(POLARIZER, float(b1), float(b2), float(a2))
+    measurement_name(b1, b2, a2): standard_polariscope(POLARIZER, float(b1), float(b2), float(a2))
     for b1 in INPUT_QWP_SETTINGS for b2 in OUTPUT_QWP_SETTINGS for a2 in ANALYZERS
 }
 
@@ -171,9 +290,9 @@ def polariscope_setting(kind: str = "circular", field: str = "dark", angle: floa
     if not np.isfinite(angle):
         raise ValueError(f"polariscope angle must be a finite number of degrees, got {angle}")
     circular = kind == "circular"
-    return Polariscope(polarizer=angle + 90.0, input_qwp=angle + 45.0 if circular else None,
-                       output_qwp=angle + 135.0 if circular else None,
-                       analyzer=angle + (0.0 if field == "dark" else 90.0))
+    return standard_polariscope(polarizer=angle + 90.0, input_qwp=angle + 45.0 if circular else None,
+                                output_qwp=angle + 135.0 if circular else None,
+                                analyzer=angle + (0.0 if field == "dark" else 90.0))
 
 
 def measurement_intensities(q: Sequence[Array]) -> dict[str, Array]:

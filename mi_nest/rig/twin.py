@@ -21,7 +21,7 @@ import numpy as np
 
 from ..dataset.camera import CameraModel
 from ..physics.backend import Array
-from ..physics.polariscope import ANALYZERS, Polariscope
+from ..physics.polariscope import ANALYZERS, Polariscope, standard_polariscope
 from ..physics.su2 import identity
 
 # ``jones_of(azimuth, elevation)``: the Jones quaternion ``(a, b, c, d)`` of every point sample in view and the
@@ -59,9 +59,11 @@ class Optics:
     def polariscope(self, qwp1: float, qwp2: float, analyzer: float, polarizer: float = 90.0) -> Polariscope:
         """The physical polariscope when the mounts read ``qwp1``, ``qwp2`` and the analyser is ``analyzer``."""
         sense = -1.0 if self.mirrored else 1.0
-        return Polariscope(sense * polarizer, sense * (qwp1 + self.qwp1_offset + 90.0 * self.qwp1_swapped),
-                           sense * (qwp2 + self.qwp2_offset + 90.0 * self.qwp2_swapped),
-                           sense * (analyzer + self.analyzer_offset), self.qwp1_retardance, self.qwp2_retardance)
+        return standard_polariscope(sense * polarizer,
+                                    sense * (qwp1 + self.qwp1_offset + 90.0 * self.qwp1_swapped),
+                                    sense * (qwp2 + self.qwp2_offset + 90.0 * self.qwp2_swapped),
+                                    sense * (analyzer + self.analyzer_offset), self.qwp1_retardance,
+                                    self.qwp2_retardance)
 
     def to_dict(self) -> dict[str, float | bool]:
         return asdict(self)

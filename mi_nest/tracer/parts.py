@@ -17,9 +17,11 @@ class StressMediumPart(abc.ABC):
 
 
 class PolariscopeLightPart(abc.ABC):
-    """The polariscope's light panel: ``radiance``, ``polarizer``, ``qwp`` (degrees or None), ``size`` (mm or None:
-    unbounded) and ``distance`` (mm behind the specimens' centre)."""
+    """The polariscope's light panel: ``radiance``, ``optics`` (its optical elements from its polariser to the
+    specimen, ``physics.polariscope``), ``size`` (mm or None: unbounded) and ``distance`` (mm behind the
+    specimens' centre)."""
 
 
 class PolariscopeCameraPart(abc.ABC):
-    """The polariscope's camera: ``qwp``, ``analyzer`` (degrees or None) and ``projection``."""
+    """The polariscope's camera: ``optics`` (its optical elements from the specimen to the camera) and
+    ``projection``."""

@@ -91,16 +91,13 @@ class SceneSetup:
             raise SceneSetupError(f"photoelastic: the scene needs exactly one "
                                   f'<emitter type="polariscope_light">, found {len(lights)}')
         light = lights[0]
-        output_qwp, analyzer = ((sensor.qwp, sensor.analyzer) if isinstance(sensor, PolariscopeCameraPart)
-                                else (None, None))
         self.radiance = light.radiance
         # A finite panel: (side, distance behind the specimens' centre, that centre, the camera's axis).
         self.panel = None
         if light.size is not None:
             forward = None if sensor is None else dr.normalize(sensor.world_transform() @ mi.Vector3f(0, 0, 1))
             self.panel = (light.size, light.distance, bounds.center(), forward)
-        self.polariscope = Polariscope(polarizer=light.polarizer, input_qwp=light.qwp, output_qwp=output_qwp,
-                                       analyzer=analyzer)
+        self.polariscope = Polariscope(light.optics, sensor.optics if isinstance(sensor, PolariscopeCameraPart) else ())
         own_right = right is None
         if right is None:
             right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
