@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import replace
-from typing import Any, Iterator
+from typing import Any, Iterator, get_type_hints
 
 import drjit as dr
 import mitsuba as mi
@@ -16,9 +16,8 @@ from mi_nest.tracer.methods import Decision
 from mi_nest.tracer.registry import METHODS, require_adjoint
 from mi_nest.tracer.tracer import SCENE_VIEW, TracePlan, Tracer, TracerConfig, View
 
-# The properties, each read as its TracerConfig field's type.
-PROPERTIES = {"step_size": float, "jitter": bool, "method": str, "points": str, "tolerance": float,
-              "max_crossings": int, "max_bounces": int}
+# The properties: TracerConfig's fields, each read as its type.
+PROPERTIES = get_type_hints(TracerConfig)
 
 
 class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
