@@ -13,7 +13,7 @@ is written to the CSV at once: an interrupted suite keeps what it did, and a rer
     python benchmarks/accuracy_suite.py --cases disk_100N,kitten --minutes 3
 
 Writes ``experiments/results/accuracy_suite[_quick].csv`` and ``.png`` (error against optimisation time, a line
-per case) and prints the table for docs/reconstruction.md, with the CPU.
+per case; ``--results`` elsewhere) and prints the table for docs/reconstruction.md, with the CPU.
 """
 from __future__ import annotations
 
@@ -205,6 +205,8 @@ def main():
     parser.add_argument("--data", type=Path, default=HERE / "experiments" / "out" / "accuracy_suite",
                         help="where datasets and reconstructions are kept (default: experiments/out/accuracy_suite)")
     parser.add_argument("--again", action="store_true", help="rerun cases the CSV already has")
+    parser.add_argument("--results", type=Path, default=HERE / "experiments" / "results",
+                        help="where the CSV and the chart go (default: experiments/results, the committed ones)")
     args = parser.parse_args()
     known = CASES + DIAGNOSTIC_CASES
     chosen = CASES if not args.cases else [c for c in known if c.name in args.cases.split(",")]
@@ -214,8 +216,7 @@ def main():
     label = "accuracy_suite_quick" if args.quick else "accuracy_suite"
     minutes = args.minutes or (QUICK["minutes"] if args.quick else 10.0)
     track_every = 20 if args.quick else 200
-    results = HERE / "experiments" / "results"
-    rows = read_rows(results / f"{label}.csv")
+    rows = read_rows(args.results / f"{label}.csv")
     done = {row["case"] for row in rows} if not args.again else set()
     print(f"CPU: {cpu_name()}; {len(chosen)} cases, {minutes:g} min each", flush=True)
     for case in chosen:
@@ -234,12 +235,12 @@ def main():
             continue
         row = row_of(case, rotations, res, minutes, simulated, run)
         rows = [r for r in rows if r["case"] != case.name] + [row]
-        write_rows(rows, results / f"{label}.csv")
+        write_rows(rows, args.results / f"{label}.csv")
         print(f"{case.name}: {100 * row['deviatoric_error']:.1f}% in {row['reconstruct_s']} s "
               f"({row['iterations']} iterations, {row['field']}; target {100 * case.target:.0f}%: {row['met']})",
               flush=True)
     if rows:
-        chart({row["case"]: history(args.data / label / row["case"]) for row in rows}, results / f"{label}.png",
+        chart({row["case"]: history(args.data / label / row["case"]) for row in rows}, args.results / f"{label}.png",
               f"accuracy suite{' (quick)' if args.quick else ''}: {minutes:g} min per case, {cpu_name()}")
         print(table(rows))
 

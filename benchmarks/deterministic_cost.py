@@ -20,11 +20,11 @@ HERE = Path(__file__).resolve().parents[1]
 DATA = HERE / "experiments" / "out" / "accuracy_suite" / "data" / "disk_100N_32x32_64"
 
 
-def run(deterministic: bool, iterations: int):
+def run(data: Path, deterministic: bool, iterations: int):
     scene = mi_nest.load_scene("disk_compression", load=100, contact_width=4, res=64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        result = mi_nest.optimize(scene, DATA, progress=False, iterations=iterations, deterministic=deterministic,
+        result = mi_nest.optimize(scene, data, progress=False, iterations=iterations, deterministic=deterministic,
                                   evaluate_views=1)
     return result.seconds, np.array(result.field.texture.tensor()), result.metrics["deviatoric_error"]
 
@@ -32,13 +32,15 @@ def run(deterministic: bool, iterations: int):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=1500)
+    parser.add_argument("--data", type=Path, default=DATA,
+                        help="a dataset of the disk target at 64 x 64 (default: the accuracy suite's)")
     args = parser.parse_args()
-    if not (DATA / "dataset.json").is_file():
-        raise SystemExit(f"{DATA} is missing: run python benchmarks/accuracy_suite.py --cases disk_100N first")
+    if not (args.data / "dataset.json").is_file():
+        raise SystemExit(f"{args.data} is missing: run python benchmarks/accuracy_suite.py --cases disk_100N first")
     print(f"CPU: {cpu_name()}, Dr.Jit threads: {dr.thread_count()}, {args.iterations} iterations each", flush=True)
     timings = {}
     for deterministic in (False, True):
-        (first, field_a, error_a), (second, field_b, error_b) = (run(deterministic, args.iterations)
+        (first, field_a, error_a), (second, field_b, error_b) = (run(args.data, deterministic, args.iterations)
                                                                  for _ in range(2))
         label = "one thread (deterministic)" if deterministic else f"{dr.thread_count()} threads (default)"
         timings[deterministic] = min(first, second)

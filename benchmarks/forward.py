@@ -237,7 +237,7 @@ def numpy_render(field_eval, phase_rate, res, depth, steps, dtype):
     from the camera-side face away from the camera, each new step multiplied on the
     right, renormalised after every step.
     """
-    from mi_nest.physics import MEASUREMENTS, Polariscope, projection, su2
+    from mi_nest.physics import MEASUREMENTS, projection, standard_polariscope, su2
     from mi_nest.physics.aliasing import fringe_aliasing
 
     origin, direction = camera_rays(res, depth, dtype)
@@ -257,7 +257,7 @@ def numpy_render(field_eval, phase_rate, res, depth, steps, dtype):
         fringe = (fringe[0] + generator[1], fringe[1] + generator[2])
 
     radiance = 1.0
-    channels = {"Y": radiance * Polariscope(polarizer=90.0, analyzer=0.0).intensity(q)}
+    channels = {"Y": radiance * standard_polariscope(polarizer=90.0, analyzer=0.0).intensity(q)}
     channels.update(zip(("jones.a", "jones.b", "jones.c", "jones.d"), q))
     channels.update(zip(("char.delta", "char.theta", "char.gamma"), su2.characteristic_parameters(q)))
     channels.update({name: radiance * scope.intensity(q) for name, scope in MEASUREMENTS.items()})

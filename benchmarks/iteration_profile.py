@@ -6,7 +6,7 @@ the iterations from ``--first`` on (by default the last fifth, in the finest
 coarse-to-fine stage), times each phase of the step between ``dr.sync_thread()``
 calls, then (a second run) sums the kernels' execution and compile times from
 Dr.Jit's kernel history. The timers add syncs: the phases' sum exceeds an
-untimed step a little.
+untimed step a little. ``--rotations`` shrinks the dataset for a quick check.
 
     python benchmarks/iteration_profile.py --scene disk_compression -D load=100 -D contact_width=4
     python benchmarks/iteration_profile.py --scene kitten -D fringe_value=4500
@@ -121,6 +121,8 @@ def main():
     parser.add_argument("--iterations", type=int, default=500)
     parser.add_argument("--first", type=int, help="first iteration measured (default: the last fifth)")
     parser.add_argument("--data", type=Path, help="dataset directory (default: a temporary one)")
+    parser.add_argument("--rotations", type=int, default=32,
+                        help="azimuths and elevations of the dataset simulated (default: 32, the target's)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
                         help="an option of mi_nest.optimize instead of its default (repeatable)")
     args = parser.parse_args()
@@ -131,11 +133,11 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp) / "data"
         if not (data / "dataset.json").is_file():      # a given dataset is used as it is (another version's too)
-            simulate(args.scene, data, SimulationSettings(azimuths=32, elevations=32, res=64), defines=defines,
-                     progress=False)
+            simulate(args.scene, data, SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=64),
+                     defines=defines, progress=False)
         scene = mi_nest.load_scene(args.scene, res=64, **defines)
-        print(f"{cpu_name()}; {args.scene} {defines}, 32 x 32 rotations at 64 x 64, optimize's defaults, "
-              f"iterations {first} to {args.iterations}, options {options or 'none'}")
+        print(f"{cpu_name()}; {args.scene} {defines}, {args.rotations} x {args.rotations} rotations at 64 x 64, "
+              f"optimize's defaults, iterations {first} to {args.iterations}, options {options or 'none'}")
         measured = phases(scene, data, args.iterations, first, options)
         for name, seconds in sorted(measured.items(), key=lambda kv: -kv[1]):
             print(f"  {name:32s} {1000 * seconds:7.2f} ms/iteration")

@@ -7,7 +7,7 @@ process's resident memory (``VmRSS``) every ``--every`` iterations. It prints
 the samples and a least-squares slope over the second half of the run, in MiB
 per 1000 iterations: memory that grows with the iterations (a leak in the loop,
 the history, the AD graph) shows there, while allocator warm-up stays in the
-first half.
+first half. ``--rotations`` shrinks the dataset for a quick check.
 
     python benchmarks/memory.py --data /tmp/t22/disk --iterations 6000
     python benchmarks/memory.py --scene kitten -D fringe_value=4500 --data /tmp/t22/kitten
@@ -60,6 +60,8 @@ def main():
     parser.add_argument("-D", dest="defines", action="append", default=["load=100", "contact_width=4"],
                         metavar="NAME=VALUE", help="scene defines (default: the disk target's)")
     parser.add_argument("--data", type=Path, help="dataset directory (simulated there if missing)")
+    parser.add_argument("--rotations", type=int, default=32,
+                        help="azimuths and elevations of the dataset simulated (default: 32, the target's)")
     parser.add_argument("--iterations", type=int, default=6000)
     parser.add_argument("--every", type=int, default=250)
     args = parser.parse_args()
@@ -72,11 +74,11 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp) / "data"
         if not (data / "dataset.json").is_file():
-            simulate(args.scene, data, SimulationSettings(azimuths=32, elevations=32, res=64), defines=defines,
-                     progress=False)
+            simulate(args.scene, data, SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=64),
+                     defines=defines, progress=False)
         scene = mi_nest.load_scene(args.scene, res=64, **defines)
-        print(f"{cpu_name()}; {args.scene} {defines}, 32 x 32 rotations at 64 x 64, the final grid throughout, "
-              f"{args.iterations} iterations, options {options}")
+        print(f"{cpu_name()}; {args.scene} {defines}, {args.rotations} x {args.rotations} rotations at 64 x 64, the "
+              f"final grid throughout, {args.iterations} iterations, options {options}")
         samples = sampled_run(scene, data, args.iterations, args.every, options)
     for iteration, mib in samples:
         print(f"  iteration {iteration:6d}: {mib:7.1f} MiB")

@@ -14,7 +14,8 @@ ray-steps per second of the transmitted walk (its marched length over the step,
 ``path.length``; the ghost walk's steps are not counted, only its time).
 Reconstruction: iterations per second of ``mi_nest.optimize`` on a small
 dataset simulated with each model (12 x 12 rotations at 48 x 48, 2048 rays a
-batch), after a first run that compiles the kernels.
+batch; ``--rotations`` fewer for a quick check), after a first run that compiles
+the kernels.
 
     python benchmarks/refraction.py
 """
@@ -67,6 +68,7 @@ def main():
     parser.add_argument("--step", type=float, default=0.1,
                         help="march step (mm): fine enough that the march, not the render's fixed costs, is timed")
     parser.add_argument("--iterations", type=int, default=300)
+    parser.add_argument("--rotations", type=int, default=12, help="of the reconstruction's datasets, per axis")
     parser.add_argument("--max-bounces", type=int, default=DEFAULT_MAX_BOUNCES)
     parser.add_argument("--skip-reconstruction", action="store_true")
     args = parser.parse_args()
@@ -96,8 +98,8 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             for label, defines in variants.items():
                 data = Path(tmp) / label.split()[0]
-                simulate(name, data, SimulationSettings(azimuths=12, elevations=12, res=48, spp=1),
-                         defines={**scene_defines, **defines}, progress=False)
+                settings = SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=48, spp=1)
+                simulate(name, data, settings, defines={**scene_defines, **defines}, progress=False)
                 reconstruction_rate(name, {**scene_defines, **defines}, data, 20)        # compiles
                 rates[label] = reconstruction_rate(name, {**scene_defines, **defines}, data, args.iterations)
         print(f"{name}: reconstruction, {args.iterations} iterations of 2048 rays")

@@ -10,8 +10,8 @@
 
     python benchmarks/separation.py [--quick]
 
-Writes ``experiments/results/separation.csv`` (``--quick``: ``experiments/out/separation_quick.csv``); prints
-the table, the CPU and the seconds.
+Writes ``experiments/results/separation.csv`` (``--quick``: ``experiments/out/separation_quick.csv``; ``--csv``
+elsewhere); prints the table, the CPU and the seconds.
 """
 from __future__ import annotations
 
@@ -123,6 +123,8 @@ def cube_child(resolution: int) -> None:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="resolution 32 only, no kitten, no reconstructions")
+    parser.add_argument("--csv", type=Path, help="the table's CSV (default: experiments/results/separation.csv; "
+                                                 "--quick: experiments/out/separation_quick.csv)")
     parser.add_argument("--cube-child", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.cube_child:
@@ -149,7 +151,7 @@ def main():
     print(rows[-1])
     columns = sorted({key for row in rows for key in row}, key=lambda k: list(rows[0]).index(k)
                      if k in rows[0] else 100)
-    output = HERE / "experiments" / ("out" if args.quick else "results") / \
+    output = args.csv or HERE / "experiments" / ("out" if args.quick else "results") / \
         ("separation_quick.csv" if args.quick else "separation.csv")
     output.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile("w", dir=output.parent, delete=False, suffix=".csv") as handle:

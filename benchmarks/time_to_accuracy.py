@@ -17,7 +17,8 @@ against the optimisation time to ``--output``.
     python benchmarks/time_to_accuracy.py --baseline /tmp/before --output /tmp/tta --flags=--fast
 
 The runs take minutes each (the baseline's about a quarter of an hour per scene
-on 2 cores); run nothing else beside them.
+on 2 cores); run nothing else beside them. ``--rotations`` and ``--iterations``
+(given to both versions) shrink them for a quick check, whose times say nothing.
 """
 from __future__ import annotations
 
@@ -40,10 +41,10 @@ SCENES = {"disk": ("disk_compression", {"load": "100", "contact_width": "4"}, 0.
 CLI = "import sys; from mi_nest.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
-def simulate(scene: str, defines: dict, directory: Path) -> None:
+def simulate(scene: str, defines: dict, directory: Path, rotations: int) -> None:
     """The target dataset, with this checkout (resumed if already there)."""
-    command = [sys.executable, "-c", CLI, "simulate", scene, "-o", str(directory), "--azimuth", "32",
-               "--elevation", "32", "--res", "64"] + [f"-D{k}={v}" for k, v in defines.items()]
+    command = [sys.executable, "-c", CLI, "simulate", scene, "-o", str(directory), "--azimuth", str(rotations),
+               "--elevation", str(rotations), "--res", "64"] + [f"-D{k}={v}" for k, v in defines.items()]
     subprocess.run(command, check=True, cwd=HERE, env={**os.environ, "PYTHONPATH": str(HERE)})
 
 
@@ -92,6 +93,8 @@ def main():
     parser.add_argument("--output", type=Path, default=Path("time_to_accuracy"))
     parser.add_argument("--data", type=Path, help="where the datasets are kept (default: under --output)")
     parser.add_argument("--flags", default="", help="flags added to this checkout's command (e.g. --flags=--fast)")
+    parser.add_argument("--rotations", type=int, default=32, help="per axis (default: 32, the targets')")
+    parser.add_argument("--iterations", type=int, help="both versions' --iterations (default: their own)")
     args = parser.parse_args()
     names = args.scenes.split(",")
     unknown = sorted(set(names) - set(SCENES))
@@ -99,8 +102,10 @@ def main():
         raise SystemExit(f"unknown scene(s) {unknown}; choose from {sorted(SCENES)}")
     args.output.mkdir(parents=True, exist_ok=True)
     data_root = args.data or args.output / "data"
-    print(f"{cpu_name()}; `mi-nest reconstruct DATA -o OUT` (each version's defaults; this checkout's with "
-          f"'{args.flags}'), 32 x 32 rotations at 64 x 64", flush=True)
+    shrink = ["--iterations", str(args.iterations)] if args.iterations else []
+    command = " ".join(["mi-nest reconstruct DATA -o OUT", *shrink])
+    print(f"{cpu_name()}; `{command}` (each version's defaults; this checkout's with "
+          f"'{args.flags}'), {args.rotations} x {args.rotations} rotations at 64 x 64", flush=True)
     rows, histories, finals = [], {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -110,11 +115,11 @@ def main():
         for name in names:
             scene, defines, target = SCENES[name]
             data = data_root / name
-            simulate(scene, defines, data)
+            simulate(scene, defines, data, args.rotations)
             seconds = {}
             for version, path_entry in versions.items():
                 run = reconstruct(path_entry, data, args.output / "results" / f"{name}_{version.replace(' ', '_')}",
-                                  args.flags.split() if version == "this checkout" else [])
+                                  (args.flags.split() if version == "this checkout" else []) + shrink)
                 record = run["record"]
                 error = record["metrics"]["deviatoric_error"]
                 seconds[version] = record["seconds"]

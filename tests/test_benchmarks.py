@@ -1,0 +1,162 @@
+"""Every script in benchmarks/ runs as documented, at a tiny size: a smoke run, so that none breaks unseen.
+
+Each case runs ``python benchmarks/NAME.py ARGS`` from the checkout's root, as its docstring or the docs give the
+command, with only the sizes shrunk (resolutions, rotations, steps, iterations, repeats, rounds, one case or scene
+where a script runs several), and checks that it exits 0 and prints what it measures (its table, its ratio). What
+a script writes goes under pytest's ``tmp_path`` (``--data``, ``--results``, ``--csv``, ``--output``), never over
+the checkout's results. A script that compares this checkout with another is given the checkout itself as its
+``--baseline``: a version against itself is a valid smoke run (and must come out identical where the script says
+whether the results agree). The figures say nothing at these sizes.
+
+Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's kernel cache warm, in seconds:
+viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
+dataset 8.2, accuracy_suite 7.4, separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
+forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
+grid_lookup 0.7, forward 0.7: 125 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
+refraction took 31 s). None is marked slow: the module fits in the default run.
+"""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "mi_nest.cli"]
+TIMEOUT = 300   # seconds per script; the slowest takes a tenth of it
+DISK_TARGET = ["disk_compression", "-D", "load=100", "-D", "contact_width=4"]
+
+
+def _run(arguments: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run(arguments, cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT)
+
+
+def _disk_target(data: Path) -> Path:
+    """The accuracy suite's disk target dataset (read noise 0.01, seed 0, 64 x 64), on 2 x 2 rotations."""
+    done = _run([*CLI, "simulate", *DISK_TARGET, "-o", str(data), "--azimuth", "2", "--elevation", "2", "--res",
+                 "64", "--noise", "0.01", "--seed", "0"])
+    assert done.returncode == 0, done.stderr[-3000:]
+    return data
+
+
+def _finished_reconstruction(tmp_path: Path) -> Path:
+    """A finished ``mi-nest reconstruct`` of a simulated dataset, as the accuracy suite leaves them, tiny."""
+    data = _disk_target(tmp_path / "data")
+    result = tmp_path / "suite" / "disk_100N"
+    done = _run([*CLI, "reconstruct", str(data), "-o", str(result), "--iterations", "5", "--option", "batch_size=64",
+                 "--resolution", "8", "--allow-aliased", "--no-progress"])
+    assert done.returncode == 0, done.stderr[-3000:]
+    return result
+
+
+# Per script: its arguments ({tmp}: pytest's tmp_path, {root}: this checkout), the lines its output must have
+# (regular expressions, each matched against a whole line) and the files it must write under {tmp}.
+CASES = {
+    "accuracy_suite": (["--quick", "--cases", "disk_100N", "--minutes", "0.02", "--data", "{tmp}/suite",
+                        "--results", "{tmp}/results"],
+                       [r"disk_100N: [\d.]+% in [\d.]+ s \(\d+ iterations, grid .*; target 5%: (yes|no)\)",
+                        r"\| case \| data \| options \| time \| iterations \| deviatoric error \|.*",
+                        r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*"],
+                       ["results/accuracy_suite_quick.csv", "results/accuracy_suite_quick.png"]),
+    "dataset": (["--baseline", "{root}", "--rotations", "2", "--res", "16"],
+                [r"scene +version +total s +render ms +write ms +peak MiB",
+                 r"disk +this checkout +[\d.]+ +[\d.]+ +[\d.]+ +\d+",
+                 r"kitten +wall time, baseline / this checkout: [\d.]+x"], []),
+    "deterministic_cost": (["--iterations", "10", "--data", "{tmp}/disk_target"],
+                           [r"2 threads \(default\): [\d.]+ and [\d.]+ iterations/s; errors .*",
+                            r"one thread \(deterministic\): .*grids differ by up to 0 stress scales",
+                            r"deterministic / default time per iteration: [\d.]+"], []),
+    "fem": (["--tets", "2000"],
+            [r"tets \d+, nodes \d+, P1 dofs \d+, solver amg \(\d+ iterations, .*",
+             r"centre s_x - s_y [\d.]+ MPa vs Frocht [\d.]+ MPa \([-+][\d.]+%\)"], []),
+    "forward": (["--res", "16", "--steps", "16", "--repeats", "1"],
+                [r"method +best s +median s +rays +steps/ray +ray-steps/s +vs NumPy",
+                 r"Dr\.Jit mi_nest .*x",
+                 r"ratio Dr\.Jit / NumPy \(best of 1\): [\d.]+x with mi\.render, .*",
+                 r"agreement Dr\.Jit vs NumPy: .*"], []),
+    "forward_versions": (["--baseline", "{root}", "--rounds", "1", "--", "--res", "16", "--steps", "16", "--repeats",
+                          "1"],
+                         [r"best: this checkout .*, baseline .* ray-steps/s; this checkout / baseline [\d.]+x",
+                          r"per round: [\d.]+x; median [\d.]+x"], []),
+    "grid_lookup": (["--res", "16", "--steps", "8", "--nodes", "8", "--repeats", "1"],
+                    [r".*the face grid's lookup agrees with the texture's within .*",
+                     r" +face grid, 2 channels \(ProjectedGrid\) +[\d.]+ ms +[\d.e+]+ lookups/s"], []),
+    "iteration_profile": (["--scene", "disk_compression", "-D", "load=100", "-D", "contact_width=4", "--rotations",
+                           "2", "--iterations", "10"],
+                          [r" +whole step +[\d.]+ ms/iteration", r" +trace_rays \(primal\) +[\d.]+ ms/iteration",
+                           r" +kernels execute [\d.]+ ms of [\d.]+ \(\d+ launches\), .*"], []),
+    "loss": ([], [r"before [\d.]+ ms, now [\d.]+ ms, ratio [\d.]+x; loss .*, gradients differ by at most .*"], []),
+    "memory": (["--data", "{tmp}/disk", "--iterations", "20", "--every", "5", "--rotations", "2"],
+               [r" +iteration +20: +[\d.]+ MiB",
+                r"second half: [\d.]+ to [\d.]+ MiB, slope [-+][\d.]+ MiB per 1000 iterations"], []),
+    "methods": (["--res", "32"],
+                [r"method +seconds +error +step mm +speed-up", r"auto +[\d.]+ +[\d.e+-]+ +[\d.]+ +[\d.]+x",
+                 r"magnus4 \d+ steps, product \(midpoint\) \d+ steps: [\d.]+x fewer \(target: at least 4x\)"], []),
+    "reconstruction": (["--baseline", "{root}", "--rotations", "2", "--res", "16", "--iterations", "5",
+                        "--resolution", "6", "--batch-size", "64", "--rounds", "1"],
+                       [r"round 1 baseline +[\d.]+ it/s .*", r"ratio this checkout / baseline: [\d.]+",
+                        r"results: identical \(loss and error, every round\)"], []),
+    "refraction": (["--rounds", "1", "--res", "16", "--spp", "1", "--step", "1", "--iterations", "5", "--rotations",
+                    "2"],
+                   [r"disk_compression: render 16x16, 1 spp, step 1\.0 mm, median of 1",
+                    r" +with ghosts \(\d+\) +[\d.]+ s .*x the straight render",
+                    r"kitten: reconstruction, 5 iterations of 2048 rays",
+                    r" +with ghosts \(\d+\) +[\d.]+ it/s +[\d.]+x the straight rate"], []),
+    "render_versions": (["--baseline", "{root}"],
+                        [r" +grid perspective +largest difference .*", r"every scene within 0\.0001 of the baseline"],
+                        []),
+    "separation": (["--quick", "--csv", "{tmp}/separation_quick.csv"],
+                   [r"\{'case': 'Frocht disk, 4 mm contacts', 'source': 'exact deviator', .*",
+                    r"\{'case': '32\^3 lattice \(a cube\)', 'source': 'speed', .*",
+                    r".*; wrote .*separation_quick\.csv"],
+                   ["separation_quick.csv"]),
+    "smoothness": (["--repeats", "2"],
+                   [r"edge None: automatic [\d.]+ ms, custom op [\d.]+ ms, ratio [\d.]+x",
+                    r"edge 0\.5: automatic [\d.]+ ms, custom op [\d.]+ ms, ratio [\d.]+x"], []),
+    "time_to_accuracy": (["--baseline", "{root}", "--output", "{tmp}/tta", "--flags=--fast", "--rotations", "2",
+                          "--iterations", "5"],
+                         [r"disk +baseline +5 it +[\d.]+ s +error .*",
+                          r"disk: baseline / this checkout optimisation time [\d.]+x",
+                          r"kitten: baseline / this checkout optimisation time [\d.]+x"],
+                         ["tta/time_to_accuracy.csv", "tta/time_to_accuracy.png"]),
+    "trust_ranking": (["{tmp}/suite/disk_100N", "--csv", "{tmp}/trust_ranking.csv"],
+                      [r"case=disk_100N nodes=\d+ trust_s=[\d.]+ .* rho_imbalance=[-\d.]+ .*", r"wrote .*"],
+                      ["trust_ranking.csv", "suite/disk_100N/trust.npz"]),
+    "viewer": (["--frames", "2"],
+               [r"scene +frames +256x256 fps +128x128 fps", r"disk_compression +dragging +[\d.]+ +[\d.]+",
+                r"kitten +slice +[\d.]+ +[\d.]+"], []),
+    "viewer_browser": (["--baseline", "{root}", "--scene", "disk_compression", "--res", "64", "--moving-res", "32",
+                        "--steps", "2", "--drag-seconds", "0.5"],
+                       [r"disk_compression: this checkout +\| +baseline",
+                        r" +slider step to frame, median \(ms\) +[\d.]+ +\| +[\d.]+",
+                        r" +drag frames per second +[\d.]+ +\| +[\d.]+"], []),
+}
+# What a script reads that a user makes first (the accuracy suite's datasets and results), made tiny in {tmp}.
+PREPARE = {"deterministic_cost": lambda tmp: _disk_target(tmp / "disk_target"),
+           "trust_ranking": _finished_reconstruction}
+
+
+def test_every_script_has_a_case():
+    assert sorted(CASES) == sorted(path.stem for path in (ROOT / "benchmarks").glob("*.py"))
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_benchmark_runs(name, tmp_path):
+    if name == "viewer_browser":
+        from test_viewer import _browser_or_skip
+        _browser_or_skip()
+    arguments, expected, written = CASES[name]
+    if name in PREPARE:
+        PREPARE[name](tmp_path)
+    done = _run([sys.executable, f"benchmarks/{name}.py",
+                 *(a.format(tmp=tmp_path, root=ROOT) for a in arguments)])
+    assert done.returncode == 0, f"benchmarks/{name}.py failed:\n{done.stdout[-3000:]}{done.stderr[-3000:]}"
+    lines = done.stdout.splitlines()
+    for pattern in expected:
+        assert any(re.fullmatch(pattern, line) for line in lines), \
+            f"benchmarks/{name}.py printed no line like {pattern!r}:\n{done.stdout[-3000:]}"
+    for path in written:
+        assert (tmp_path / path).is_file(), f"benchmarks/{name}.py did not write {path}"
