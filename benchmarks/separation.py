@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 import mi_nest
 from mi_nest.fields.base import sample
-from mi_nest.inside import open_source
+from mi_nest.views import open_source
 from mi_nest.scene import specimen_media
 from mi_nest.separation import separate
 from mi_nest.separation.report import against_truth, errors, inside_nodes

@@ -20,7 +20,7 @@ from dataclasses import replace
 import imageio.v3 as iio
 import numpy as np
 
-from mi_nest.inside.viewer import FrameRenderer, ViewState, to_rgb
+from mi_nest.views.viewer import FrameRenderer, ViewState, to_rgb
 
 from reconstruction import cpu_name
 

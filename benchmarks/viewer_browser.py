@@ -1,7 +1,7 @@
 """``mi-nest view`` as a person sees it: times measured in a real browser (Debian's headless Chromium through
 Playwright), from an input event to the changed image on the page.
 
-The page is instrumented before it loads (``mi_nest/inside/page_probe.py``): every input event (key, pointer)
+The page is instrumented before it loads (``mi_nest/views/page_probe.py``): every input event (key, pointer)
 and every frame the 3D view draws are stamped with the page's own clock. Measured:
 
 - page load: from navigation to the first frame drawn;
@@ -33,7 +33,7 @@ from reconstruction import cpu_name, installed_layout, run
 
 HERE = Path(__file__).resolve().parents[1]
 # This checkout's probe, for a baseline's viewer too (read from the file: a baseline's mi_nest may have none).
-PAGE_PROBE = runpy.run_path(str(HERE / "mi_nest" / "inside" / "page_probe.py"))["PAGE_PROBE"]
+PAGE_PROBE = runpy.run_path(str(HERE / "mi_nest" / "views" / "page_probe.py"))["PAGE_PROBE"]
 WORKER = f"""
 import json, runpy, sys
 sys.path.insert(1, {str(Path(__file__).resolve().parent)!r})
@@ -85,7 +85,7 @@ def measure(scene: str, resolution: int, moving: int, steps: int, drag_seconds: 
     """The figures of one viewer (the ``mi_nest`` this process imports) on ``scene``."""
     from playwright.sync_api import sync_playwright
 
-    from mi_nest.inside.viewer import FrameRenderer, Viewer
+    from mi_nest.views.viewer import FrameRenderer, Viewer
     viewer = Viewer(FrameRenderer(scene, {}, resolution, moving), port=0)
     viewer.start()
     results = {}

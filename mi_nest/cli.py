@@ -14,7 +14,7 @@ import numpy as np
 
 from . import interrupts
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
-from .inside.slicing import REGION_HELP
+from .views.slicing import REGION_HELP
 from .io.atomic import require_file_path
 from .physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS
 from .reconstruct import KIND_CHOICES, METHODS, DivergenceError
@@ -289,8 +289,8 @@ def _add_polariscope_options(parser):
 
 
 def _render(args):
-    from .inside import open_source
-    from .inside.views import render_view
+    from .views import open_source
+    from .views.novel import render_view
     from .io.exr import require_exr_name
     source = open_source(args.scene, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png}, args.scene, source)
@@ -302,7 +302,7 @@ def _render(args):
 def _refuse_overwriting_source(outputs, text, source):
     """Refuse ``outputs`` (option -> path) that are files ``source`` (opened from ``text``) was read from: its
     scene's, and a reconstruction's own."""
-    from .inside.source import RESULT_FILES
+    from .views.source import RESULT_FILES
     from .io.atomic import refuse_overwriting_inputs
     from .scene import scene_inputs, scene_origin
     scene, defines = scene_origin(source.scene)
@@ -319,8 +319,8 @@ def _polariscope(args):
 
 
 def _turntable(args):
-    from .inside import open_source
-    from .inside.views import require_animation_path, turntable, write_animation
+    from .views import open_source
+    from .views.novel import require_animation_path, turntable, write_animation
     require_animation_path(args.output)     # before anything renders
     source = open_source(args.source, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output}, args.source, source)
@@ -332,8 +332,8 @@ def _turntable(args):
 
 
 def _compare(args):
-    from .inside import open_source
-    from .inside.views import held_out_views, write_held_out_sheet
+    from .views import open_source
+    from .views.novel import held_out_views, write_held_out_sheet
     source = open_source(args.result)
     _refuse_overwriting_source({"-o": args.output}, args.result, source)
     if args.views < 1:
@@ -367,7 +367,7 @@ def _export(args):
         print(f"wrote {Path(args.output).resolve()} ({summary})")
         return
     from .export import export_scene
-    from .inside import open_source
+    from .views import open_source
     source = open_source(args.field, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output}, args.field, source)
     if source.deviatoric:
@@ -566,8 +566,8 @@ def _calibrate(args):
 
 
 def _slice(args):
-    from .inside import Plane, Region, SliceSpec, open_source, slice_render
-    from .inside.plots import write_slice_maps
+    from .views import Plane, Region, SliceSpec, open_source, slice_render
+    from .views.plots import write_slice_maps
     from .io.exr import require_exr_name
     from .physics.polariscope import polariscope_setting
     spec = SliceSpec(Plane.parse(args.plane, args.normal, args.offset), args.thickness,
@@ -585,8 +585,8 @@ def _slice(args):
 
 
 def _principal(args):
-    from .inside import Plane, open_source
-    from .inside.principal import (deviatoric_error, source_slices, uncertainty_on, uncertainty_ranking,
+    from .views import Plane, open_source
+    from .views.principal import (deviatoric_error, source_slices, uncertainty_on, uncertainty_ranking,
                                    write_principal_figure)
     plane = Plane.parse(args.plane, args.normal, args.offset)
     source = open_source(args.source, dict(args.defines))
@@ -618,7 +618,7 @@ def _principal(args):
 def _separate(args):
     import contextlib
 
-    from .inside import open_source
+    from .views import open_source
     from .io.lock import locked_directory
     from .reconstruct.checkpoints import record_separation
     from .scene import scene_field
@@ -671,7 +671,7 @@ SUSPECTS_SHOWN = 3
 
 def _view(args):
     from .arguments import whole_number
-    from .inside.viewer import PORTS, require_address, run_viewer
+    from .views.viewer import PORTS, require_address, run_viewer
     for name in ("res", "moving_res"):
         whole_number(f"--{name.replace('_', '-')}", getattr(args, name), minimum=8)
     whole_number("--port", args.port, minimum=PORTS.start, maximum=PORTS.stop - 1)

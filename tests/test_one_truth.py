@@ -10,7 +10,7 @@ from mi_nest.cli import main
 from mi_nest.dataset import simulate
 from mi_nest.dataset.truth import SceneRecord, recorded_scene
 from mi_nest.fields.base import sample
-from mi_nest.inside import open_source
+from mi_nest.views import open_source
 from mi_nest.reconstruct import optimize
 from mi_nest.scene import SceneError, specimen_media
 from scenes import TINY

@@ -108,8 +108,8 @@ def test_an_export_to_an_unknown_format_is_refused_before_anything_is_loaded(tmp
 
 def test_the_slice_plots_data_are_the_closed_forms():
     from mi_nest.fields import UniformField
-    from mi_nest.inside import Plane
-    from mi_nest.inside.principal import principal_slice
+    from mi_nest.views import Plane
+    from mi_nest.views.principal import principal_slice
     # Lame's tube under internal pressure p, open ends: hoop, axial (zero) and radial stresses.
     scene = mi_nest.load_scene("lame_cylinder", res=16)
     data = principal_slice(scene, Plane.parse("z=1"), resolution=48)

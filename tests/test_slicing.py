@@ -8,8 +8,8 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.inside import Plane, Region, SliceError, SliceSpec, slice_render
-from mi_nest.inside.slicing import slice_image
+from mi_nest.views import Plane, Region, SliceError, SliceSpec, slice_render
+from mi_nest.views.slicing import slice_image
 from mi_nest.io.exr import read_channels
 from mi_nest.physics import su2
 from mi_nest.physics.polariscope import polariscope_setting

@@ -99,7 +99,7 @@ def test_the_trust_map_at_a_point_is_its_nearest_measured_node():
 
 
 def test_the_uncertainty_ranking_is_spearmans_over_the_pixels_where_both_are_known():
-    from mi_nest.inside.principal import uncertainty_ranking
+    from mi_nest.views.principal import uncertainty_ranking
     error = np.array([[0.1, 0.5, np.nan], [2.0, 0.3, 9.0]])
     assert uncertainty_ranking(np.log(error), error) == pytest.approx(1.0)
     assert uncertainty_ranking(-error, error) == pytest.approx(-1.0)

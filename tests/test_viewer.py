@@ -13,8 +13,8 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.inside.page_probe import PAGE_PROBE
-from mi_nest.inside.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
+from mi_nest.views.page_probe import PAGE_PROBE
+from mi_nest.views.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
 from mi_nest.physics.polariscope import polariscope_setting
 from mi_nest.scene import pose
 from mi_nest.tracer import View

@@ -10,8 +10,8 @@ import pytest
 import mi_nest
 from mi_nest.cli import main
 from mi_nest.dataset import SimulationSettings, simulate
-from mi_nest.inside import open_source
-from mi_nest.inside.views import held_out_views, render_view, turntable, view_pose
+from mi_nest.views import open_source
+from mi_nest.views.novel import held_out_views, render_view, turntable, view_pose
 from mi_nest.io.exr import read_channels
 from mi_nest.reconstruct import Reconstruction
 from mi_nest.scene import pose
@@ -124,8 +124,8 @@ def test_bad_view_options_get_one_line(arguments, message, tmp_path, capsys, mon
 
 
 def test_a_reconstructions_principal_stresses_are_deviatoric_beside_the_truths(result, tmp_path, capsys):
-    from mi_nest.inside import Plane
-    from mi_nest.inside.principal import source_slices
+    from mi_nest.views import Plane
+    from mi_nest.views.principal import source_slices
     shown, truth = source_slices(open_source(result / "result"), Plane.parse("z=0"), 24)
     assert shown.deviatoric and truth is not None and truth.deviatoric
     inside = shown.inside & truth.inside
@@ -140,7 +140,7 @@ def test_a_reconstructions_principal_stresses_are_deviatoric_beside_the_truths(r
     assert re.search(r"where to trust it \(trust.npz\): uncertainty \S+ to \S+ stress scales per box length on this "
                      r"plane; it ranks the actual deviatoric error at Spearman -?\d\.\d\d", printed)
     assert iio.imread(output).shape[1] > 5 * 4 * 80        # five panels across, not four
-    from mi_nest.inside.principal import deviatoric_error, uncertainty_on
+    from mi_nest.views.principal import deviatoric_error, uncertainty_on
     difference = (shown.stress - truth.stress)[inside]
     difference[:, :3] -= difference[:, :3].mean(axis=1, keepdims=True)
     expected = np.linalg.norm(difference[:, [0, 3, 5, 3, 1, 4, 5, 4, 2]], axis=1)    # the full 3x3 matrix's norm
@@ -197,7 +197,7 @@ def test_principal_names_a_deviator_and_its_colour_bars_show_what_they_clip(resu
     assert main(["principal", str(result / "result"), "--plane", "z=0", "--res", "24", "-o", str(output)]) == 0
     printed = capsys.readouterr().out
     assert "deviatoric s_1" in printed and "deviatoric s_3" in printed and " sigma_1" not in printed
-    from mi_nest.inside import principal
+    from mi_nest.views import principal
     plt = principal.pyplot()
     figure, axis = plt.subplots()
     values = np.array([[0.0, 0.5], [1.0, 9.0]])

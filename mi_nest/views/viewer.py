@@ -25,7 +25,7 @@ from ..physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS, polaris
 from ..scene import SceneError, specimen_bounds, specimen_media, specimen_shapes
 from .slicing import AXES, Plane, SliceError, Slicer, SliceSpec
 from .source import open_source
-from .views import render_pose
+from .novel import render_pose
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080

@@ -1,4 +1,4 @@
-"""Looking inside a stress field, true or reconstructed: virtual slices, novel views, principal stresses."""
+"""Views into a stress field, true or reconstructed: virtual slices, novel views, principal stresses, the viewer."""
 from .slicing import Plane, Region, SliceError, SliceSpec, slice_render
 from .source import ViewSource, open_source
 

@@ -1,9 +1,9 @@
-"""Make the pictures of README's "Looking inside" and docs/inside.md with the commands they show.
+"""Make the pictures of README's "Views into the field" and docs/views.md with the commands they show.
 
-    .venv/bin/python scripts/inside_pictures.py [DEMO_OUTPUT (default: mi_nest_out)]
+    .venv/bin/python scripts/view_pictures.py [DEMO_OUTPUT (default: mi_nest_out)]
 
 Needs the demo's output (bash scripts/demo.sh) for the reconstruction's views, and Debian's chromium
-(scripts/setup.sh --browser) for the viewer's screenshot. Writes docs/images/inside/.
+(scripts/setup.sh --browser) for the viewer's screenshot. Writes docs/images/views/.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-IMAGES = ROOT / "docs" / "images" / "inside"
+IMAGES = ROOT / "docs" / "images" / "views"
 MI_NEST = [sys.executable, "-m", "mi_nest.cli"]
 
 
@@ -30,7 +30,7 @@ def viewer_screenshot(source: str, output: Path) -> None:
 
     from playwright.sync_api import sync_playwright
 
-    from mi_nest.inside.page_probe import PAGE_PROBE
+    from mi_nest.views.page_probe import PAGE_PROBE
     process = subprocess.Popen(MI_NEST + ["view", source, "--no-browser", "--port", "0"], stdout=subprocess.PIPE,
                                text=True, cwd=IMAGES)
     try:
