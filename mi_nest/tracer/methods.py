@@ -96,9 +96,9 @@ class Method:
         """A walk's segment: its state (what :meth:`accumulate` takes) and its summed fringe generator."""
         raise NotImplementedError
 
-    def trace(self, carry: tuple, segment: Segment, setup: SceneSetup) -> tuple:
-        """The primal pass over one segment; ``carry`` is ``(state, fringe)``, from :meth:`trace_start`."""
-        state, fringe = carry
+    def trace(self, progress: tuple, segment: Segment, setup: SceneSetup) -> tuple:
+        """The primal pass over one segment; ``progress`` is ``(state, fringe)``, from :meth:`trace_start`."""
+        state, fringe = progress
         result, segment_fringe = self.march(segment, setup)
         return self.accumulate(state, result), _add(fringe, segment_fringe)
 
@@ -106,10 +106,11 @@ class Method:
         return self.start(), (mi.Float(0), mi.Float(0))
 
     def replay_start(self, state: su2.Quaternion) -> Any:
-        """The adjoint pass's carry for a ray whose traced state is ``state``."""
+        """The adjoint pass's progress (what it threads from segment to segment) for a ray whose traced state
+        is ``state``."""
         raise NotImplementedError
 
-    def replay(self, carry: Any, state_grad: su2.Quaternion, segment: Segment, setup: SceneSetup) -> Any:
+    def replay(self, progress: Any, state_grad: su2.Quaternion, segment: Segment, setup: SceneSetup) -> Any:
         """Back-propagate ``state_grad`` (the adjoint of the ray's state) into one segment's field lookups."""
         raise NotImplementedError
 
@@ -177,7 +178,7 @@ class ChainMethod(Method):
         return su2.identity(mi.Float(0)), su2.Quaternion(tuple(mi.Float(x) for x in state))
 
     @dr.syntax
-    def replay(self, carry: tuple[su2.Quaternion, su2.Quaternion], state_grad: su2.Quaternion, segment: Segment,
+    def replay(self, progress: tuple[su2.Quaternion, su2.Quaternion], state_grad: su2.Quaternion, segment: Segment,
                setup: SceneSetup) -> tuple[su2.Quaternion, su2.Quaternion]:
         """Products ``J = A U B``: a step ``U`` receives ``conj(A) dJ conj(B)``.
 
@@ -185,7 +186,7 @@ class ChainMethod(Method):
         from the primal ``J``) shrinks as the replay advances: both are exact
         since every step is unitary, so nothing per step is stored.
         """
-        before, after = carry
+        before, after = progress
         i = mi.UInt32(0)
         while dr.hint(i < segment.steps, exclude=[segment, self, setup, state_grad]):
             with dr.resume_grad():
@@ -274,14 +275,14 @@ class Linear(OnePointRule, Method):
         return mi.Float(0)      # the state is a sum: every step receives the ray's adjoint itself
 
     @dr.syntax
-    def replay(self, carry: mi.Float, state_grad: su2.Generator, segment: Segment, setup: SceneSetup) -> mi.Float:
+    def replay(self, progress: mi.Float, state_grad: su2.Generator, segment: Segment, setup: SceneSetup) -> mi.Float:
         i = mi.UInt32(0)
         while dr.hint(i < segment.steps, exclude=[segment, self, setup, state_grad]):
             with dr.resume_grad():
                 increment, _ = self.step(SegmentStep(segment, setup, i))
                 dr.backward_from(_dot(state_grad, increment))
             i += 1
-        return carry
+        return progress
 
 
 class RK4(Method):

@@ -238,7 +238,7 @@ class Tracer:
             step = plan.decision.step_size if step_size is None else min(step_size, plan.decision.step_size)
             coefficients = setup.projection_coefficients(d)
             seeds = _ray_seeds(seed, dr.width(origins))
-            carry = method.trace_start()
+            progress = method.trace_start()
             length = mi.Float(0)
             for index, (start, end, medium) in enumerate(chords):
                 chord = dr.maximum(end - start, 0.0)
@@ -246,9 +246,9 @@ class Tracer:
                 steps, h = equal_steps(chord, marched, step)
                 segment = Segment(steps, h, mi.UInt32(medium), dr.fma(d, start, origins), d, coefficients,
                                   mi.sample_tea_32(seeds, mi.UInt32(index))[0])
-                carry = method.trace(carry, segment, setup)
+                progress = method.trace(progress, segment, setup)
                 length += dr.select(marched, chord, 0.0)
-            state, fringe = carry
+            state, fringe = progress
             main, aovs = self.outputs(plan, method.finish(state), fringe, mi.Bool(False), length)
             dr.eval(main, aovs, fringe)
             return main[0], aovs, fringe
@@ -329,8 +329,8 @@ class Tracer:
         aovs.append(length)
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
-    def _walk(self, scene, ray, plan, active, seeds, carry, segment_step):
-        return walk(scene, ray, plan.setup, plan.decision.step_size, active, seeds, carry, segment_step,
+    def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):
+        return walk(scene, ray, plan.setup, plan.decision.step_size, active, seeds, progress, segment_step,
                     self.config.max_crossings)
 
     def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool,
@@ -353,8 +353,8 @@ class Tracer:
         field lookups."""
         method = plan.decision.method
 
-        def segment_step(carry: object, segment: Segment, setup: SceneSetup) -> object:
-            return method.replay(carry, state_grad, segment, setup)
+        def segment_step(progress: object, segment: Segment, setup: SceneSetup) -> object:
+            return method.replay(progress, state_grad, segment, setup)
         self._walk(scene, ray, plan, active, seeds, method.replay_start(state), segment_step)
 
 

@@ -23,13 +23,13 @@ RETRIES = 2
 
 @dr.syntax
 def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, active: mi.Bool, seeds: mi.UInt32,
-         carry: object, segment_step: Callable, max_crossings: int) -> tuple[object, mi.Bool, mi.Float]:
-    """Follow each ray through every specimen; ``carry = segment_step(carry, segment, setup)`` for each inside
-    segment.
+         progress: object, segment_step: Callable, max_crossings: int) -> tuple[object, mi.Bool, mi.Float]:
+    """Follow each ray through every specimen; ``progress = segment_step(progress, segment, setup)`` for each
+    inside segment (what the pass threads along the ray: the primal product so far, or the replay's).
 
-    Returns ``(carry, blocked, length)``: whether an opaque shape stops the ray,
+    Returns ``(progress, blocked, length)``: whether an opaque shape stops the ray,
     and its length inside specimens. The primal pass and the adjoint replay
-    differ only in ``carry`` and ``segment_step``.
+    differ only in ``progress`` and ``segment_step``.
 
     Inside a specimen the next crossing must be its exit (or a glued
     neighbour's face, or an opaque shape), and an exit must follow an entry
@@ -75,7 +75,7 @@ def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, ac
         marched = active & hit & (inside != 0) & ~unexpected
         steps, h = equal_steps(chord, marched, step_size)
         segment_seed = mi.sample_tea_32(seeds, crossings)[0]
-        carry = segment_step(carry, Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
+        progress = segment_step(progress, Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
         length += dr.select(marched, chord, 0.0)
         crossed = ~retry
         blocked |= crossed & hit & (hit_medium == 0)
@@ -88,7 +88,7 @@ def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, ac
         retries = dr.select(crossed, 0, retries + 1)
         crossings += 1
         active &= (hit | retry) & ~blocked & (crossings < max_crossings)
-    return carry, blocked, length
+    return progress, blocked, length
 
 
 def past_panel(setup: SceneSetup, ray: mi.Ray3f, blocked: mi.Bool) -> mi.Bool:
