@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .dataset import Dataset, SimulationSettings, simulate
 from .reconstruct import Reconstruction, optimize
+from .reconstruct.metrics import floor_bounds_nothing
 from .reconstruct.outputs import write_test_view, write_truth_beside_reconstruction
 from .render import render
 from .scene import load_scene, scene_path, specimen_media
@@ -56,8 +57,10 @@ def run_demo(output_dir: str | Path, iterations: int = DEMO_ITERATIONS) -> Recon
     written = write_test_view(loop_scene, reconstruction, out / "reconstruction", dataset)
     default_view = load_scene(scene_path(DEFAULT_SCENE), **defines)
     comparison = write_truth_beside_reconstruction(default_view, reconstruction, out)
-    print(f"relative deviatoric stress error: {100 * reconstruction.metrics['deviatoric_error']:.1f}% "
-          f"(the floor: the least-squares fit of the true field by this {reconstruction.field.describe()} scores "
-          f"{100 * reconstruction.metrics['grid_floor']:.1f}%)")
+    found = reconstruction.metrics
+    floor = ("" if floor_bounds_nothing(reconstruction.field, found["grid_floor"], found["evaluation_points"]) else
+             f" (the floor: the least-squares fit of the true field by this {reconstruction.field.describe()} "
+             f"scores {100 * found['grid_floor']:.1f}%)")
+    print(f"relative deviatoric stress error: {100 * found['deviatoric_error']:.1f}%{floor}")
     print(f"wrote {(out / 'reconstruction').resolve()} (field.npz, reconstruction.json{written}) and {comparison}")
     return reconstruction

@@ -362,6 +362,24 @@ def test_the_best_fit_beats_nodal_sampling_and_fits_linear_fields_exactly():
     assert metrics.best_fit_floor(field, bending, scene, shapes, points, fit_points_per_axis=40) < 1e-4
 
 
+def test_a_grid_with_more_nodes_than_evaluation_points_is_not_given_a_floor():
+    """A grid at least as fine as the evaluation lattice fits the truth through every point: its floor of zero
+    says nothing, and the summary says why instead of printing it."""
+    from mi_nest.reconstruct import Reconstruction
+    scene, shapes, truth, points, coarse = _disk_floor_case()
+    fine = make_field(FieldConfig(kind="grid", resolution=48), *specimen_bounds(shapes), 1.0)
+    floors = {name: metrics.grid_floor(field, truth, points) for name, field in (("coarse", coarse), ("fine", fine))}
+    assert floors["fine"] < 1e-4 < 0.05 < floors["coarse"]
+    assert metrics.floor_bounds_nothing(fine, floors["fine"], len(points))
+    assert not metrics.floor_bounds_nothing(coarse, floors["coarse"], len(points))
+    for field, floor, said in ((fine, floors["fine"], "they set no floor"),
+                               (coarse, floors["coarse"], f"the best any grid of this size can score: "
+                                                          f"{100 * floors['coarse']:.2f}%")):
+        found = {"deviatoric_error": 0.3, "principal_difference_error": 0.3, "grid_floor": floor,
+                 "evaluation_points": len(points)}
+        assert said in Reconstruction(field, OptimizeConfig(), [], found, 0.0).describe()
+
+
 def test_the_grid_floor_is_a_floor_no_grid_scores_below():
     scene, shapes, truth, points, field = _disk_floor_case()
     floor = metrics.grid_floor(field, truth, points)

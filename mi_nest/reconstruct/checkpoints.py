@@ -16,6 +16,7 @@ from ..io.atomic import atomic_path
 from ..physics.aliasing import UNRESOLVED_SHARE
 from ..render import RenderResult, render
 from ..tracer import Tracer
+from . import metrics
 from .config import OptimizeConfig
 from .fields import TrainableField, field_from_state
 from .forward import make_tracer
@@ -155,7 +156,14 @@ class Reconstruction:
                  f"{self.seconds:.1f} s, final loss {self.history[-1]['loss']:.4f}" if self.history else ""]
         if "deviatoric_error" in self.metrics:
             floor = self.metrics.get("grid_floor")
-            floor_text = "" if floor is None else f" (the best any grid of this size can score: {100 * floor:.2f}%)"
+            points = self.metrics.get("evaluation_points", 0)
+            if floor is None:
+                floor_text = ""
+            elif metrics.floor_bounds_nothing(self.field, floor, points):
+                floor_text = (f" (a grid of this size has as many nodes as the {points} evaluation points and can "
+                              "pass through the truth at each: they set no floor)")
+            else:
+                floor_text = f" (the best any grid of this size can score: {100 * floor:.2f}%)"
             lines.append(f"relative deviatoric stress error {100 * self.metrics['deviatoric_error']:.2f}%{floor_text}, "
                          f"principal stress difference error {100 * self.metrics['principal_difference_error']:.2f}%")
         if self.metrics.get("aliased_share", 0.0) > UNRESOLVED_SHARE:

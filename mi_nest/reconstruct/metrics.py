@@ -19,6 +19,8 @@ if TYPE_CHECKING:
 
 # Points per axis of the evaluation lattice along the longest side of the specimen.
 EVALUATION_POINTS = 40
+# A grid floor below this (relative error) from a grid with as many nodes as points: a fit through every point.
+FLOOR_OF_A_FIT_THROUGH_EVERY_POINT = 1e-3
 
 
 @dataclass
@@ -105,6 +107,13 @@ def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) ->
     if not getattr(field, "lattice", False):
         return None
     return _grid_error(field, fitted_nodes(field, truth, points), truth, points)
+
+
+def floor_bounds_nothing(field: TrainableField, floor: float, points: int) -> bool:
+    """Whether a :func:`grid_floor` of ``floor`` over ``points`` evaluation points says nothing: a grid with at
+    least as many nodes as points can pass through the truth at every one of them, and a floor of (nearly) zero
+    then tells only that."""
+    return floor < FLOOR_OF_A_FIT_THROUGH_EVERY_POINT and points <= int(np.prod(field.shape))
 
 
 def fitted_nodes(field: TrainableField, truth: StressField, fit_points: np.ndarray) -> np.ndarray:
