@@ -551,9 +551,9 @@ def test_cli_reconstructs_for_a_number_of_minutes(tiny_dataset, tmp_path, capsys
 
 
 def test_cli_defaults_to_the_targets_regulariser_and_options_override_it(tiny_dataset, tmp_path, capsys):
-    common = ["reconstruct", str(tiny_dataset), "--allow-aliased",
-              "--iterations", "2", "--option", "batch_size=64", "--resolution", "6",
-              "--no-progress"]
+    networks = ["reconstruct", str(tiny_dataset), "--allow-aliased", "--iterations", "2", "--option", "batch_size=64",
+                "--no-progress"]
+    common = [*networks, "--resolution", "6"]
 
     def config(name):
         return json.loads((tmp_path / name / "reconstruction.json").read_text())["config"]
@@ -573,11 +573,15 @@ def test_cli_defaults_to_the_targets_regulariser_and_options_override_it(tiny_da
     assert main([*common, "--no-regulariser", "-o", str(tmp_path / "plain")]) == 0
     assert Regulariser(**config("plain")["regulariser"]) == NO_REGULARISER
     # Other representations have no smoothness: the default leaves it out, a smoothness asked for is refused.
-    assert main([*common, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 0
+    assert main([*networks, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 0
     assert Regulariser(**config("mlp")["regulariser"]) == NO_REGULARISER
     capsys.readouterr()
-    assert main([*common, "--kind", "mlp", "--option", "smoothness=1e-3", "-o", str(tmp_path / "refused")]) == 2
+    assert main([*networks, "--kind", "mlp", "--option", "smoothness=1e-3", "-o", str(tmp_path / "refused")]) == 2
     assert "acts on grids only" in capsys.readouterr().err
+    # Another kind's options would be dropped without a word: they are refused, naming whose they are.
+    assert main([*common, "--kind", "mlp", "--option", "levels=4", "-o", str(tmp_path / "refused")]) == 2
+    assert ("a 'mlp' field does not read 'levels' (hashgrid's), 'resolution' (grid's); leave them out, or give "
+            "kind=grid or hashgrid") in capsys.readouterr().err
     for option, message in (("smoothnes=1", "unknown option 'smoothnes'; the options are average_last, "),
                             ("batch_size=6.5", "option 'batch_size' takes an integer, got '6.5'")):
         assert main([*common, "--option", option, "-o", str(tmp_path / "bad")]) == 2

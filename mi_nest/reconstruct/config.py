@@ -19,7 +19,7 @@ from typing import get_type_hints
 
 from ..arguments import whole_number
 from ..tracer.registry import DIFFERENTIABLE
-from .kinds import AUTO, MLP, kind_named
+from .kinds import AUTO, KINDS, MLP, kind_named
 
 # The tracer's methods a reconstruction can differentiate.
 FORWARD_MODELS = DIFFERENTIABLE
@@ -276,6 +276,17 @@ class OptimizeConfig:
             elif not isinstance(given, group):
                 raise TypeError(f"'{name}' must be a {group.__name__}, got {type(given).__name__}")
             object.__setattr__(self, name, replace(given, **{k: v for k, v in options.items() if k in names[name]}))
+        # Another kind's options, given for a kind that does not read them, would be dropped without a word.
+        kind = kind_named(self.field.kind)
+        others = set().union(*(names[name] for name in groups if name != "field"))
+        foreign = sorted(set(options) & names["field"] - {"kind"} - kind.options.names() - others)
+        if kind is not AUTO and foreign:
+            readers = {name: [k.name for k in KINDS.values() if name in k.options.names()] for name in foreign}
+            kinds = sorted({reader for names_ in readers.values() for reader in names_})
+            raise ValueError(f"a '{kind.name}' field does not read "
+                             + ", ".join(f"'{name}' ({' and '.join(r)}'s)" for name, r in readers.items())
+                             + f"; leave {'it' if len(foreign) == 1 else 'them'} out, or give kind="
+                             + " or ".join(kinds))
         self._check_across_groups()
 
     def _check_across_groups(self):
@@ -319,8 +330,11 @@ class OptimizeConfig:
             return cls(**{name: group(**record[name]) for name, group in groups.items()})
         # Before the groups: flat options, with the field's (and the regulariser's smoothness) under "field";
         # what they did not record was not done then (no regulariser).
+        old = record.get("field", {})
+        own = {f.name for f in fields(FieldConfig)}
         return cls(**{"regulariser": NO_REGULARISER, **{k: v for k, v in record.items() if k != "field"},
-                      **record.get("field", {})})
+                      "field": FieldConfig(**{k: v for k, v in old.items() if k in own}),
+                      **{k: v for k, v in old.items() if k not in own}})
 
 
 def option_names() -> list[str]:

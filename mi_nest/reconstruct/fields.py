@@ -111,7 +111,8 @@ class TrainableField(StressField):
         return KINDS[self.kind].lattice
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
-        self.config = config
+        self.config = config                                # what the run recorded
+        self.options = KINDS[self.kind].options.of(config)  # the part of it this kind reads
         self.bbox_min = np.asarray(bbox_min, dtype=np.float64)
         self.bbox_max = np.asarray(bbox_max, dtype=np.float64)
         if not np.all(self.bbox_max > self.bbox_min):
@@ -185,7 +186,7 @@ class DeviatoricGrid(TrainableField):
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
-        self.shape = grid_shape(config.resolution, self.bbox_max - self.bbox_min)      # (nx, ny, nz)
+        self.shape = grid_shape(self.options.resolution, self.bbox_max - self.bbox_min)      # (nx, ny, nz)
         nx, ny, nz = self.shape
         self.texture = mi.Texture3f(mi.TensorXf(np.zeros((nz, ny, nx, 5), dtype=np.float32)),
                                     filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
@@ -242,7 +243,7 @@ class DeviatoricGrid(TrainableField):
         # Opaque, the weight and the edge: ones that decay or follow the field's scale would rebuild the kernels.
         edge_squared = None if edge is None else dr.opaque(mi.Float, edge ** 2)
         return dr.custom(_Smoothness, self.texture.tensor().array, self._pairs, self.shape,
-                         float(self.config.resolution - 1), dr.opaque(mi.Float, weight), edge_squared)
+                         float(self.options.resolution - 1), dr.opaque(mi.Float, weight), edge_squared)
 
     def equilibrium_penalty(self, weight: float, stencil: equilibrium.CellStencil) -> mi.Float | None:
         if weight == 0 or self.mean is None:
@@ -321,12 +322,12 @@ class SiLU(nn.Module):
         return half + half * dr.tanh(half)
 
 
-def _network(config, inputs, hidden_layers, encoding=None):
+def _network(options, inputs, hidden_layers, encoding=None):
     layers = [] if encoding is None else [encoding]
     for _ in range(hidden_layers):
-        layers += [nn.Linear(-1, config.width, bias=True), SiLU()]
+        layers += [nn.Linear(-1, options.width, bias=True), SiLU()]
     layers.append(nn.Linear(-1, 5, bias=True))
-    net = nn.Sequential(*layers).alloc(mi.TensorXf, inputs, rng=dr.rng(seed=config.seed))
+    net = nn.Sequential(*layers).alloc(mi.TensorXf, inputs, rng=dr.rng(seed=options.seed))
     return nn.pack(net, layout="training")
 
 
@@ -345,7 +346,8 @@ class MLPField(_NeuralField):
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
         # Shifted octaves keep the encoding's extrema off a common lattice.
-        self.net = _network(config, 3, config.layers, nn.SinEncode(config.octaves, shift=0.25))
+        options = self.options
+        self.net = _network(options, 3, options.layers, nn.SinEncode(options.octaves, shift=0.25))
 
     def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         return self._evaluate(self.unit_coordinates(p))
@@ -354,7 +356,7 @@ class MLPField(_NeuralField):
         return {"weights": self.net["weights"]}
 
     def describe(self) -> str:
-        return f"mlp {self.config.layers}x{self.config.width}, {self.config.octaves} octaves"
+        return f"mlp {self.options.layers}x{self.options.width}, {self.options.octaves} octaves"
 
 
 class HashGridField(_NeuralField):
@@ -363,11 +365,12 @@ class HashGridField(_NeuralField):
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         super().__init__(config, bbox_min, bbox_max, stress_scale)
+        options = self.options
         self.encoding = nn.HashGridEncoding(
-            mi.Float, 3, n_levels=config.levels, n_features_per_level=config.features_per_level,
-            hashmap_size=config.hashmap_size, base_resolution=config.base_resolution,
-            per_level_scale=config.level_scale, init_scale=1e-2, rng=dr.rng(seed=config.seed + 1))
-        self.net = _network(config, config.levels * config.features_per_level, 1)
+            mi.Float, 3, n_levels=options.levels, n_features_per_level=options.features_per_level,
+            hashmap_size=options.hashmap_size, base_resolution=options.base_resolution,
+            per_level_scale=options.level_scale, init_scale=1e-2, rng=dr.rng(seed=options.seed + 1))
+        self.net = _network(options, options.levels * options.features_per_level, 1)
 
     def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         # The encoding reads outside its tables for coordinates outside [0, 1] (values of 1e26 seen), and
@@ -382,8 +385,8 @@ class HashGridField(_NeuralField):
         super().assign(values)
 
     def describe(self) -> str:
-        return (f"hashgrid {self.config.levels} levels x {self.config.features_per_level} features, "
-                f"2^{int(np.log2(self.config.hashmap_size))} entries")
+        return (f"hashgrid {self.options.levels} levels x {self.options.features_per_level} features, "
+                f"2^{int(np.log2(self.options.hashmap_size))} entries")
 
 
 FIELDS = {cls.kind: cls for cls in (DeviatoricGrid, HashGridField, MLPField)}

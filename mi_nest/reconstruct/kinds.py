@@ -6,7 +6,45 @@ what it supports here instead of comparing names.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+
+
+@dataclass(frozen=True)
+class KindOptions:
+    """A kind's own options, read from the flat ``FieldConfig`` a run takes and records (where their defaults
+    live): each representation reads these and nothing else."""
+
+    @classmethod
+    def of(cls, config) -> KindOptions:
+        return cls(**{f.name: getattr(config, f.name) for f in fields(cls)})
+
+    @classmethod
+    def names(cls) -> set[str]:
+        return {f.name for f in fields(cls)}
+
+
+@dataclass(frozen=True)
+class GridOptions(KindOptions):
+    resolution: int             # nodes along the longest axis
+
+
+@dataclass(frozen=True)
+class HashGridOptions(KindOptions):
+    levels: int
+    features_per_level: int
+    hashmap_size: int           # entries per level
+    base_resolution: int
+    level_scale: float          # resolution ratio between levels
+    width: int                  # the decoder's hidden units
+    seed: int                   # of the initial weights
+
+
+@dataclass(frozen=True)
+class MLPOptions(KindOptions):
+    width: int                  # hidden units per layer
+    layers: int
+    octaves: int                # of the sinusoidal encoding
+    seed: int
 
 
 @dataclass(frozen=True)
@@ -16,15 +54,18 @@ class FieldKind:
     # Nodes on a regular lattice: refined coarse to fine, smoothed by their gradients, balanced by the equilibrium
     # prior, fitted to a start field, marched with steps of half their spacing.
     lattice: bool
+    options: type[KindOptions]
 
 
-GRID = FieldKind("grid", "a dense grid of the deviator's nodes", lattice=True)
-HASHGRID = FieldKind("hashgrid", "a multiresolution hash grid decoded by a small MLP", lattice=False)
-MLP = FieldKind("mlp", "the NeST paper's MLP on a sinusoidal encoding", lattice=False)
+GRID = FieldKind("grid", "a dense grid of the deviator's nodes", lattice=True, options=GridOptions)
+HASHGRID = FieldKind("hashgrid", "a multiresolution hash grid decoded by a small MLP", lattice=False,
+                     options=HashGridOptions)
+MLP = FieldKind("mlp", "the NeST paper's MLP on a sinusoidal encoding", lattice=False, options=MLPOptions)
 KINDS = {kind.name: kind for kind in (GRID, HASHGRID, MLP)}
 # Not a kind but a choice among them (fields.choose_kind): a grid unless it would be too large, so what grids
-# support is allowed with it, and refused where a run settles on another kind.
-AUTO = FieldKind("auto", "a grid, or a hash grid where a grid would be too large", lattice=True)
+# support is allowed with it, and refused where a run settles on another kind; it may read any kind's options.
+AUTO = FieldKind("auto", "a grid, or a hash grid where a grid would be too large", lattice=True,
+                 options=KindOptions)
 CHOICES = {**KINDS, AUTO.name: AUTO}
 
 
