@@ -1,4 +1,5 @@
-"""Figures of what lies inside: a slice's fringes with its isochromatic order and isoclinic angle maps."""
+"""Figures of what lies inside: a slice's fringes with its isochromatic order and isoclinic angle maps; the
+interference colours of white light (a Michel-Levy chart)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -54,3 +55,25 @@ def write_slice_maps(path: str | Path, result: RenderResult, title: str) -> Path
         axis.set_ylabel("image up (mm)")
         figure.colorbar(drawn, ax=axis, shrink=0.85, label=label)
     return save_figure(figure, path, title)
+
+
+def write_michel_levy_chart(path: str | Path, light=None, max_retardation: float = 1800.0,
+                            reference_wavelength: float = 550.0) -> Path:
+    """The interference colours of a retarder between crossed and parallel polarisers in white light (default: a
+    white LED, ``physics.colour.white_led``) against its retardation (nm) and its fringe order at
+    ``reference_wavelength``: a Michel-Levy chart, the photoelastician's key from colour to fringe order."""
+    from ..physics.colour import interference_colours, white_led
+    light = white_led() if light is None else light
+    retardation = np.linspace(0.0, max_retardation, 900)
+    plt = pyplot()
+    figure, axes = plt.subplots(2, 1, figsize=(10, 3.2), sharex=True, constrained_layout=True)
+    for ax, field in zip(axes, ("dark", "light")):
+        strip = interference_colours(retardation, light, field)[None, :, :]
+        ax.imshow(np.repeat(strip, 40, axis=0), aspect="auto", extent=(0.0, max_retardation, 0.0, 1.0))
+        ax.set_yticks([])
+        ax.set_ylabel(f"{field}\nfield", rotation=0, ha="right", va="center")
+    axes[-1].set_xlabel("retardation (nm)")
+    order = axes[0].secondary_xaxis("top", functions=(lambda r: r / reference_wavelength,
+                                                      lambda n: n * reference_wavelength))
+    order.set_xlabel(f"fringe order at {reference_wavelength:g} nm")
+    return save_figure(figure, path, f"interference colours in {light.name} light (plane polariscope at 45 degrees)")

@@ -1,0 +1,92 @@
+"""White light through a retarder: the interference colours (issue 37), against closed forms and the textbook
+sequence of a Michel-Levy chart."""
+import numpy as np
+import pytest
+
+from mi_nest.physics.colour import (Spectrum, interference_colours, monochromatic, plane_polariscope_transmission,
+                                    tristimulus, white_led, white_point)
+
+RETARDATIONS = np.linspace(0.0, 2000.0, 401)
+
+
+def _lab(retardation, light):
+    import colour
+    xyz = tristimulus(plane_polariscope_transmission(retardation, light.wavelengths), light)
+    return colour.XYZ_to_Lab(xyz, illuminant=white_point(light))
+
+
+@pytest.mark.parametrize("light", [white_led(), monochromatic(589.0)], ids=["white LED", "sodium line"])
+def test_the_dark_and_light_fields_are_complementary_and_add_up_to_the_light(light):
+    """Each wavelength passes with sin^2 in one field and cos^2 in the other: their colours sum to the light."""
+    dark, bright = (tristimulus(plane_polariscope_transmission(RETARDATIONS, light.wavelengths, field), light)
+                    for field in ("dark", "light"))
+    np.testing.assert_allclose(dark + bright, np.broadcast_to(tristimulus(np.ones(len(light.wavelengths)), light),
+                                                             dark.shape), atol=1e-12)
+    assert tristimulus(np.ones(len(light.wavelengths)), light)[1] == pytest.approx(1.0)
+    np.testing.assert_allclose(interference_colours(0.0, light, "dark"), 0.0, atol=1e-12)
+    np.testing.assert_allclose(interference_colours(0.0, light, "light"), 1.0, atol=1e-4)    # white-balanced
+
+
+def test_one_line_gives_the_monochromatic_fringes():
+    """In monochromatic light the luminance is the render's own intensity, ``sin^2(pi R / lambda)``."""
+    light = monochromatic(532.0)
+    luminance = tristimulus(plane_polariscope_transmission(RETARDATIONS, light.wavelengths), light)[:, 1]
+    np.testing.assert_allclose(luminance, np.sin(np.pi * RETARDATIONS / 532.0) ** 2, atol=1e-12)
+
+
+@pytest.mark.parametrize("retardation, name, lightness, hue", [
+    (100.0, "first-order grey", (40, 75), None),
+    (250.0, "first-order white", (90, 101), None),
+    (400.0, "first-order yellow", (70, 95), (60, 100)),
+    (560.0, "first-order red (the sensitive tint)", (15, 40), (280, 340)),
+    (650.0, "second-order blue", (45, 70), (235, 275)),
+    (800.0, "second-order green", (85, 100), (100, 160)),
+    (900.0, "second-order yellow", (85, 100), (75, 100)),
+])
+def test_a_white_led_gives_the_textbook_interference_colours(retardation, name, lightness, hue):
+    """The Michel-Levy sequence (e.g. Hecht, Optics, section 8.11; Dally and Riley, chapter on photoelasticity):
+    CIELAB lightness and hue angle of each named colour within the stated ranges; grey and white without hue
+    (chroma under 20)."""
+    L, a, b = _lab(retardation, white_led())
+    assert lightness[0] <= L <= lightness[1], (name, L)
+    chroma, angle = np.hypot(a, b), np.degrees(np.arctan2(b, a)) % 360
+    if hue is None:
+        assert chroma < 20, (name, chroma)
+    else:
+        assert chroma > 30 and hue[0] <= angle <= hue[1], (name, chroma, angle)
+
+
+def test_the_sensitive_tint_is_where_the_eye_sees_least_light():
+    """The first-order red is the luminance minimum of the first order, where the retardation cancels the
+    wavelengths the eye sees best (photopic peak 555 nm): textbooks put it at 530 to 575 nm."""
+    retardation = np.arange(300.0, 800.0)
+    luminance = tristimulus(plane_polariscope_transmission(retardation, white_led().wavelengths), white_led())[:, 1]
+    assert 530 <= retardation[np.argmin(luminance)] <= 575 and luminance.min() < 0.06
+
+
+@pytest.mark.parametrize("wavelengths, power, message", [
+    ([], [], "at least one wavelength"),
+    ([600.0, 500.0], [1.0, 1.0], "must increase"),
+    ([500.0, 500.0], [1.0, 1.0], "must increase"),
+    ([-500.0], [1.0], "positive numbers of nm"),
+    ([500.0, 600.0], [0.0, 0.0], "not zero everywhere"),
+    ([500.0, 600.0], [1.0, np.nan], "must be finite")])
+def test_a_spectrum_that_is_not_a_light_is_refused(wavelengths, power, message):
+    with pytest.raises(ValueError, match=message):
+        Spectrum(np.array(wavelengths), np.array(power))
+    with pytest.raises(ValueError, match="no power the eye sees"):
+        tristimulus(np.ones(1), Spectrum(np.array([1500.0]), np.array([1.0])))
+
+
+def test_the_chart_shows_the_colours_it_computes(tmp_path):
+    import imageio.v3 as iio
+    from mi_nest.views.plots import write_michel_levy_chart
+    path = write_michel_levy_chart(tmp_path / "chart.png", max_retardation=1800.0)
+    image = iio.imread(path)[..., :3].astype(float) / 255
+    # The dark-field strip's row through its middle: its colours run as computed, left to right.
+    expected = interference_colours(np.array([400.0, 560.0, 650.0]))
+    rows = np.flatnonzero(np.abs(image - expected[0]).sum(axis=-1).min(axis=1) < 0.06)
+    assert len(rows) > 0
+    row = image[rows[len(rows) // 2]]
+    found = [int(np.argmin(np.abs(row - colour).sum(axis=-1))) for colour in expected]
+    assert found == sorted(found) and all(np.abs(row[i] - c).sum() < 0.1 for i, c in zip(found, expected))
