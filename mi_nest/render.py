@@ -229,15 +229,23 @@ class ViewError(ValueError):
 
 def phase_scale(scene: mi.Scene, load_scale: float = 1.0, wavelength: float | None = None) -> float:
     """The factor on every phase of a view at ``load_scale`` times the load and at ``wavelength`` (nm; None:
-    the material's): the stress-optic coefficient C is the material's, so the phase goes as 1 / wavelength."""
+    the material's): the phase goes as ``C(lambda) / lambda``, C following the medium's dispersion (constant
+    unless the scene gives one, docs/physics.md section 9)."""
     check_light_and_load(load_scale, wavelength)
     if wavelength is None:
         return float(load_scale)
-    wavelengths = {medium.wavelength for medium in specimen_media(scene)}
-    if len(wavelengths) > 1:
-        raise ViewError(f"the specimens' media are given at different wavelengths ({sorted(wavelengths)} nm): "
-                        "leave the wavelength at each medium's own")
-    return float(load_scale) * wavelengths.pop() / wavelength
+    try:
+        # Each medium's phase per mm goes as C(lambda) / lambda: its own wavelength over this one, times its
+        # dispersion (1.0 for a constant C, so the factor is what it was before dispersion existed).
+        scales = {float(load_scale) * medium.wavelength / wavelength * medium.dispersion_factor(wavelength)
+                  for medium in specimen_media(scene)}
+    except ValueError as error:
+        raise ViewError(str(error)) from None
+    if len(scales) > 1:
+        raise ViewError(f"at {wavelength:g} nm the specimens' media change their phases by different factors "
+                        f"({', '.join(f'{s:.4g}' for s in sorted(scales))}: their wavelengths or dispersions "
+                        "differ); leave the wavelength at the media's own")
+    return scales.pop()
 
 
 def check_light_and_load(load_scale: float, wavelength: float | None) -> None:

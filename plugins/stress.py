@@ -9,6 +9,7 @@ import numpy as np
 
 from mi_nest.fields import MODELS, FieldParameterError
 from mi_nest.fields.base import sample as sample_field
+from mi_nest.physics.dispersion import Constant, Table, parse_dispersion
 from mi_nest.physics.tensors import Tensor, Vector
 from mi_nest.tracer.parts import StressMediumPart
 
@@ -34,6 +35,15 @@ class StressMedium(mi.Medium):
      * - wavelength
        - |float|
        - Wavelength in nm. (Default: 532, the rig's bandpass filter)
+
+     * - dispersion
+       - |string|
+       - How C changes with the wavelength, for views at other wavelengths:
+         ``constant``, ``cauchy B`` (``C = A + B / lambda^2``, B in Brewster
+         nm^2, A set by C at ``wavelength``) or ``table L1 C1 L2 C2 ...``
+         (C in Brewster measured at L in nm, linear between; it then gives C
+         at ``wavelength`` itself, so leave out ``stress_optic_coefficient``
+         and ``fringe_value``). (Default: constant)
 
      * - filename
        - |string|
@@ -81,11 +91,23 @@ class StressMedium(mi.Medium):
     def __init__(self, props):
         super().__init__(props)
         self.wavelength = _positive(props, "wavelength", 532.0)
+        try:
+            self.dispersion = parse_dispersion(str(props["dispersion"])) if "dispersion" in props else Constant()
+        except ValueError as error:
+            raise ValueError(f"stress medium: {error}") from None
         has_c, has_f = "stress_optic_coefficient" in props, "fringe_value" in props
-        if has_c == has_f:
+        if isinstance(self.dispersion, Table):
+            if has_c or has_f:
+                raise ValueError("stress medium: a dispersion table gives C at the medium's wavelength too; leave "
+                                 "out 'stress_optic_coefficient' and 'fringe_value'")
+            try:
+                self.stress_optic_coefficient = self.dispersion.coefficient(self.wavelength)
+            except ValueError as error:
+                raise ValueError(f"stress medium: {error}") from None
+        elif has_c == has_f:
             raise ValueError("stress medium: give exactly one of 'stress_optic_coefficient' "
                              "(Brewster) or 'fringe_value' (N/mm)")
-        if has_c:
+        elif has_c:
             self.stress_optic_coefficient = _positive(props, "stress_optic_coefficient", None)
         else:
             self.stress_optic_coefficient = self.wavelength / _positive(props, "fringe_value", None)
@@ -96,6 +118,13 @@ class StressMedium(mi.Medium):
     @property
     def fringe_value(self) -> float:
         return self.wavelength / self.stress_optic_coefficient
+
+    def dispersion_factor(self, wavelength: float) -> float:
+        """``C(wavelength) / C``: how much the stress-optic coefficient changes from the medium's wavelength."""
+        if isinstance(self.dispersion, Constant):
+            return 1.0
+        at = self.dispersion.coefficient(wavelength, self.wavelength, self.stress_optic_coefficient)
+        return at / self.stress_optic_coefficient
 
     def stress(self, p: Vector) -> Tensor:
         """Stress tensor (MPa, 3D-TSV 6-tuple) at points ``p`` (mm)."""
@@ -112,8 +141,8 @@ class StressMedium(mi.Medium):
         self.field.parameters_changed(keys)
 
     def to_string(self) -> str:
-        return (f"StressMedium[C={self.stress_optic_coefficient:g} B, "
-                f"wavelength={self.wavelength:g} nm, field={self.field!r}]")
+        return (f"StressMedium[C={self.stress_optic_coefficient:g} B, wavelength={self.wavelength:g} nm, "
+                f"dispersion={self.dispersion.describe()}, field={self.field!r}]")
 
 
 def resolve_path(filename: str | Path) -> str:
