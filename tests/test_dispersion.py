@@ -26,7 +26,8 @@ def test_dispersions_read_from_text_and_give_their_closed_forms():
         Cauchy(-1e8).coefficient(400.0, 532.0, 50.0)
     for text, message in (("cauchy", "write 'constant', 'cauchy B'"), ("table 450 56 532", "write 'constant'"),
                           ("table 500 50 450 56", "increasing"), ("table 450 -1 532 50", "positive Brewster"),
-                          ("cauchy x", "give numbers"), ("cauchy inf", "finite"), ("sellmeier 1", "write")):
+                          ("cauchy x", "give numbers"), ("cauchy inf", "finite"), ("sellmeier 1", "write"),
+                          ("  ", "dispersion is empty")):
         with pytest.raises(ValueError, match=message):
             parse_dispersion(text)
 

@@ -278,7 +278,7 @@ def test_optics_read_from_text_and_refuse_what_is_not_an_element():
         Compensator(45.0, 360.0, 0.5))
     assert parse_optics("") == ()
     for text, message in (("lens 3", "unknown optical element 'lens'"), ("hwp", "hwp takes angle"),
-                          ("qwp 1 2 3", "qwp takes angle retardance"), ("polarizer x", "takes numbers"),
+                          ("qwp 1 2 3", "qwp takes angle retardance"), ("polarizer x", "give numbers after 'polarizer'"),
                           ("polarizer nan", "must be finite")):
         with pytest.raises(ValueError, match=message):
             parse_optics(text)

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .parsing import name_and_numbers
+
 
 @dataclass(frozen=True)
 class Constant:
@@ -70,13 +72,7 @@ Dispersion = Constant | Cauchy | Table
 
 def parse_dispersion(text: str) -> Dispersion:
     """``"constant"``, ``"cauchy B"`` (Brewster nm^2) or ``"table L1 C1 L2 C2 ..."`` (nm, Brewster)."""
-    name, *numbers = text.split()
-    try:
-        values = [float(x) for x in numbers]
-    except ValueError:
-        raise ValueError(f"dispersion '{text}': give numbers after '{name}'") from None
-    if not all(np.isfinite(values)):
-        raise ValueError(f"dispersion '{text}': the numbers must be finite")
+    name, values = name_and_numbers(text, "dispersion")
     if name == "constant" and not values:
         return Constant()
     if name == "cauchy" and len(values) == 1:

@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from . import jones
+from .parsing import name_and_numbers
 from .backend import Array
 
 # J = a B_a + b B_b + c B_c + d B_d (see su2.py).
@@ -133,15 +134,9 @@ def parse_optics(text: str) -> tuple[Element, ...]:
     for part in (p.strip() for p in text.split(";")):
         if not part:
             continue
-        name, *numbers = part.split()
+        name, values = name_and_numbers(part, "optical element")
         if name not in ELEMENTS:
             raise ValueError(f"unknown optical element '{name}' in '{text}'; choose one of {', '.join(ELEMENTS)}")
-        try:
-            values = [float(x) for x in numbers]
-        except ValueError:
-            raise ValueError(f"'{part}': an optical element takes numbers (degrees), got {numbers}") from None
-        if not all(np.isfinite(values)):
-            raise ValueError(f"'{part}': the numbers must be finite")
         try:
             elements.append(ELEMENTS[name](*values))
         except TypeError:
