@@ -44,7 +44,10 @@ def _parser():
     _add_polariscope_options(render)
     render.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                         metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
-    render.add_argument("--png", help="also write a PNG preview of the main channel")
+    render.add_argument("--png", help="also write a PNG preview of the main channel (of the colours in white light)")
+    render.add_argument("--white-light", action="store_true",
+                        help="in a white LED's light: a colour image (R, G, B), its luminance and each wavelength's "
+                             "intensity (docs/physics.md section 9)")
     render.add_argument("--spp", type=int, help="samples per pixel (overrides the scene)")
     render.add_argument("--seed", type=int, default=0, help="random seed")
     render.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -288,6 +291,10 @@ def _add_polariscope_options(parser):
     parser.add_argument("--wavelength", type=float, help="nm (default: the material's)")
 
 
+# nm between the wavelengths of a white-light render: one render each (41 from 380 to 780 nm).
+WHITE_LIGHT_STEP = 10.0
+
+
 def _render(args):
     from .views import open_source
     from .views.novel import render_view
@@ -295,8 +302,12 @@ def _render(args):
     source = open_source(args.scene, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png}, args.scene, source)
     require_exr_name(args.output)
+    light = None
+    if args.white_light:
+        from .physics.colour import white_led
+        light = white_led(step=WHITE_LIGHT_STEP)
     render_view(source, args.azimuth, args.elevation, _polariscope(args), args.load_scale, args.wavelength,
-                spp=args.spp, seed=args.seed, progress=not args.quiet).write(args.output, args.png)
+                spp=args.spp, seed=args.seed, progress=not args.quiet, light=light).write(args.output, args.png)
 
 
 def _refuse_overwriting_source(outputs, text, source):

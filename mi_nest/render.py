@@ -16,6 +16,8 @@ from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
+from .physics.colour import Spectrum
+from .physics.polariscope import Polariscope
 from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
 from .tracer import SCENE_VIEW, View
 from .version import __version__
@@ -75,9 +77,13 @@ class RenderResult:
         from .io.exr import write_channels
         write_channels(path, self.channels, metadata=self.metadata)
 
-    def write_png(self, path: str | Path, channel: str = "Y") -> None:
-        from .io.preview import write_preview
-        write_preview(path, self.channels[channel])
+    def write_png(self, path: str | Path, channel: str | None = None) -> None:
+        """A PNG of ``channel``; by default the main channel, or the colour image of a white-light render."""
+        from .io.preview import write_colour_preview, write_preview
+        if channel is None and all(c in self.channels for c in COLOUR_CHANNELS):
+            write_colour_preview(path, np.stack([self.channels[c] for c in COLOUR_CHANNELS], axis=-1))
+        else:
+            write_preview(path, self.channels[channel or "Y"])
 
     def write(self, output: str | Path, png: str | Path | None = None) -> None:
         """Write the EXR (and a PNG of the main channel) and say where."""
@@ -148,6 +154,47 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
                 "mi_nest.integrator": integrator.class_name()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata,
                         warnings=[str(w.message) for w in last_of_kind.values()], aliasing=aliasing)
+
+
+# A white-light render's colour image: sRGB, display-encoded, white-balanced to the light.
+COLOUR_CHANNELS = ("R", "G", "B")
+
+
+def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int | None = None, seed: int = 0,
+                       progress: bool = False, field: StressField | None = None,
+                       polariscope: Polariscope | None = None, load_scale: float = 1.0) -> RenderResult:
+    """``scene`` seen in white light (default: the white LED panel, ``physics.colour.white_led``): the main
+    channel rendered at each of the light's wavelengths, every phase scaled by ``C(lambda) / lambda``
+    (:func:`phase_scale`, the media's dispersion) with the polariscope's elements taken as achromatic, the same
+    samples at every wavelength (one seed), and the spectrum seen as colour (``physics.colour``).
+
+    Channels: ``R``, ``G``, ``B`` (sRGB), ``Y`` (the luminance, 1 for the light passed whole) and each
+    wavelength's intensity as ``I.<nm>``. One render per wavelength: a reference for the spectral march
+    that is to share the lookups between wavelengths (issue 37)."""
+    from tqdm import tqdm
+    from .physics.colour import to_srgb, tristimulus, white_led
+    light = white_led(step=10.0) if light is None else light
+    start = time.perf_counter()
+    bands = []
+    # Every wavelength warns alike (aliasing): report each kind once, the last wavelength's.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for wavelength in tqdm(light.wavelengths, desc="white light", unit="wavelength", leave=False,
+                               disable=not progress):
+            view = View(polariscope, phase_scale(scene, load_scale, float(wavelength)))
+            result = render(scene, spp=spp, seed=seed, field=field, view=view)
+            bands.append(result.main)
+    last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
+    for w in last_of_kind.values():
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    spectrum = np.stack(bands, axis=-1).astype(np.float64)
+    channels = dict(zip(COLOUR_CHANNELS, np.moveaxis(to_srgb(spectrum, light).astype(np.float32), -1, 0)))
+    channels["Y"] = tristimulus(spectrum, light)[..., 1].astype(np.float32)
+    channels.update({f"I.{wavelength:g}": band for wavelength, band in zip(light.wavelengths, bands)})
+    metadata = {**result.metadata, "mi_nest.light": light.name,
+                "mi_nest.wavelengths": ",".join(f"{w:g}" for w in light.wavelengths)}
+    return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata,
+                        warnings=[str(w.message) for w in last_of_kind.values()])
 
 
 # Bytes per sample beyond its channels during a pass (ray, loop state). With it the estimate below stayed

@@ -90,3 +90,45 @@ def test_the_chart_shows_the_colours_it_computes(tmp_path):
     row = image[rows[len(rows) // 2]]
     found = [int(np.argmin(np.abs(row - colour).sum(axis=-1))) for colour in expected]
     assert found == sorted(found) and all(np.abs(row[i] - c).sum() < 0.1 for i, c in zip(found, expected))
+
+
+def test_a_slab_in_white_light_renders_its_interference_colour():
+    """A uniform slab of retardation R = C t (sigma_1 - sigma_2) (Brewster x mm x MPa = nm) at 45 degrees between
+    crossed polarisers, and in the circular dark field, renders the closed-form colour of that R."""
+    from mi_nest.physics.polariscope import polariscope_setting
+    from mi_nest.render import render_white_light
+    from scenes import box, medium, scene
+    loaded = scene([box((20, 20, 4), interior=medium(xx=3.0))], res=2)        # C = 50 Brewster, 4 mm: 600 nm
+    light = white_led(step=10.0)
+    expected = interference_colours(50.0 * 4.0 * 3.0, light)
+    for scope in (polariscope_setting("linear", "dark", 45.0), polariscope_setting("circular", "dark")):
+        result = render_white_light(loaded, light, polariscope=scope)
+        rendered = np.stack([result.channels[c] for c in "RGB"], axis=-1)
+        np.testing.assert_allclose(rendered, np.broadcast_to(expected, rendered.shape), atol=2e-4)
+    assert expected[2] > 0.8 > 0.4 > expected[1]          # second-order blue
+    assert len([name for name in result.channels if name.startswith("I.")]) == len(light.wavelengths)
+
+
+def test_one_line_of_white_light_is_the_monochromatic_render_bit_for_bit():
+    import mi_nest
+    from mi_nest.render import render_white_light
+    loaded = mi_nest.load_scene("disk_compression", res=16, spp=1, load=300)
+    own = mi_nest.render(loaded).main
+    line = render_white_light(loaded, monochromatic(532.0)).channels["I.532"]
+    assert np.array_equal(line, own)
+
+
+def test_the_command_renders_white_light_in_colour(tmp_path, capsys):
+    import imageio.v3 as iio
+    from mi_nest.cli import main
+    from mi_nest.io.exr import read_channels
+    arguments = ["render", "disk_compression", "-D", "res=24", "-D", "load=300", "--white-light", "--quiet"]
+    assert main([*arguments, "-o", str(tmp_path / "disk.exr"), "--png", str(tmp_path / "disk.png")]) == 0
+    channels = read_channels(tmp_path / "disk.exr")
+    assert {"R", "G", "B", "Y", "I.380", "I.780"} <= set(channels)
+    image = iio.imread(tmp_path / "disk.png")
+    assert image.shape[-1] >= 3 and np.ptp(image[..., 0].astype(int) - image[..., 2].astype(int)) > 50  # colours
+    capsys.readouterr()
+    assert main([*arguments, "--wavelength", "600", "-o", str(tmp_path / "refused.exr")]) == 2
+    err = capsys.readouterr().err
+    assert "leave out the wavelength" in err and "Traceback" not in err and not (tmp_path / "refused.exr").exists()

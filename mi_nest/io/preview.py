@@ -25,6 +25,15 @@ def write_preview(path: str | Path, image: np.ndarray, vmin: float = 0.0, vmax: 
                    format="png")
 
 
+def write_colour_preview(path: str | Path, rgb: np.ndarray) -> None:
+    """A colour PNG of an ``(H, W, 3)`` image already in display values (sRGB in [0, 1])."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    with atomic_path(path, ".png") as tmp:
+        plt.imsave(tmp, np.clip(np.asarray(rgb, dtype=np.float32), 0.0, 1.0), format="png")
+
+
 def write_comparison(path: str | Path, panels: list[tuple[str, np.ndarray]], title: str,
                      panel_inches: float = 3.6) -> None:
     """Labelled grey-level panels (intensities, 0 to 1) side by side and their difference (first minus second)

@@ -20,7 +20,8 @@ from ..io.atomic import atomic_path
 from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope
 from ..reconstruct.evaluation import view_psnr
-from ..render import RenderResult, phase_scale, render
+from ..physics.colour import Spectrum
+from ..render import RenderResult, ViewError, phase_scale, render, render_white_light
 from ..scene import pose
 from ..tracer import View
 from .plots import pyplot, save_figure
@@ -39,24 +40,32 @@ def view_pose(source: ViewSource, azimuth: float = 0.0, elevation: float = 0.0) 
 
 def render_view(source: ViewSource, azimuth: float = 0.0, elevation: float = 0.0,
                 polariscope: Polariscope | None = None, load_scale: float = 1.0, wavelength: float | None = None,
-                spp: int | None = None, seed: int = 0, progress: bool = False) -> RenderResult:
+                spp: int | None = None, seed: int = 0, progress: bool = False,
+                light: Spectrum | None = None) -> RenderResult:
     """Render ``source`` (its true or reconstructed field) with the specimen turned to ``azimuth``/``elevation``,
-    through ``polariscope`` (None: the scene's) at ``load_scale`` times the load and ``wavelength`` (nm)."""
+    through ``polariscope`` (None: the scene's) at ``load_scale`` times the load and ``wavelength`` (nm), or in
+    the white ``light`` given (``render.render_white_light``: a colour image)."""
     result = render_pose(source, view_pose(source, azimuth, elevation), polariscope, load_scale, wavelength, spp,
-                         seed, progress)
+                         seed, progress, light)
     result.metadata.update({"mi_nest.azimuth": f"{azimuth:g}", "mi_nest.elevation": f"{elevation:g}"})
     return result
 
 
 def render_pose(source: ViewSource, to_world: np.ndarray, polariscope: Polariscope | None = None,
                 load_scale: float = 1.0, wavelength: float | None = None, spp: int | None = None, seed: int = 0,
-                progress: bool = False) -> RenderResult:
+                progress: bool = False, light: Spectrum | None = None) -> RenderResult:
     """Render ``source`` with its camera at ``to_world`` (4x4), as :func:`render_view` does at its angles: what
     the viewer renders where a drag left the camera."""
     pose(source.scene, to_world)
-    scale = phase_scale(source.scene, load_scale, wavelength)
-    result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field,
-                    view=View(polariscope, scale))
+    if light is not None:
+        if wavelength is not None:
+            raise ViewError(f"white light holds every wavelength of '{light.name}': leave out the wavelength "
+                            f"({wavelength:g} nm)")
+        result = render_white_light(source.scene, light, spp, seed, progress, source.field, polariscope, load_scale)
+    else:
+        scale = phase_scale(source.scene, load_scale, wavelength)
+        result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field,
+                        view=View(polariscope, scale))
     result.metadata["mi_nest.source"] = source.name
     return result
 
