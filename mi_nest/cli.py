@@ -269,7 +269,9 @@ def _parser():
     slicing.add_argument("--region", help="keep only the part of the volume inside: " + REGION_HELP)
     slicing.add_argument("-o", "--output", required=True, help="output EXR (every channel of a render, "
                                                                   "isoclinic.angle, slab.mask)")
-    slicing.add_argument("--png", help="also write a PNG of the fringes")
+    slicing.add_argument("--png", help="also write a PNG of the fringes (in colour with --white-light)")
+    slicing.add_argument("--white-light", action="store_true",
+                         help="in a white LED's light: the slice's isochromatics in colour (docs/physics.md section 9)")
     slicing.add_argument("--maps", help="also write a PNG of the fringes, isochromatic order and isoclinic angle")
     slicing.add_argument("--res", type=int, default=256, help="pixels along the part's longer side (default: 256)")
     _add_polariscope_options(slicing)
@@ -577,7 +579,7 @@ def _calibrate(args):
 
 
 def _slice(args):
-    from .views import Plane, Region, SliceSpec, open_source, slice_render
+    from .views import Plane, Region, SliceSpec, open_source, slice_render, slice_render_white_light
     from .views.plots import write_slice_maps
     from .io.exr import require_exr_name
     from .physics.polariscope import polariscope_setting
@@ -587,7 +589,14 @@ def _slice(args):
     source = open_source(args.source, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png, "--maps": args.maps}, args.source, source)
     require_exr_name(args.output)
-    result = slice_render(source.scene, spec, source.field)
+    if args.white_light:
+        if args.maps:
+            raise ValueError("--maps draws one wavelength's isochromatic order and isoclinic angle: leave out "
+                             "--white-light or --maps")
+        from .physics.colour import white_led
+        result = slice_render_white_light(source.scene, spec, source.field, white_led(step=WHITE_LIGHT_STEP))
+    else:
+        result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)
     if args.maps:
         scope = f"{args.field or 'dark'}-field {args.polariscope or 'circular'} polariscope"

@@ -8,6 +8,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import mitsuba as mi
 import numpy as np
@@ -166,11 +167,20 @@ def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int 
     """``scene`` seen in white light (default: the white LED panel, ``physics.colour.white_led``): the main
     channel rendered at each of the light's wavelengths, every phase scaled by ``C(lambda) / lambda``
     (:func:`phase_scale`, the media's dispersion) with the polariscope's elements taken as achromatic, the same
-    samples at every wavelength (one seed), and the spectrum seen as colour (``physics.colour``).
+    samples at every wavelength (one seed), and the spectrum seen as colour (:func:`in_white_light`)."""
+    def render_at(wavelength: float) -> RenderResult:
+        view = View(polariscope, phase_scale(scene, load_scale, wavelength))
+        return render(scene, spp=spp, seed=seed, field=field, view=view)
+    return in_white_light(render_at, light, progress)
 
-    Channels: ``R``, ``G``, ``B`` (sRGB), ``Y`` (the luminance, 1 for the light passed whole) and each
-    wavelength's intensity as ``I.<nm>``. One render per wavelength: a reference for the spectral march
-    that is to share the lookups between wavelengths (issue 37)."""
+
+def in_white_light(render_at: Callable[[float], RenderResult], light: Spectrum | None = None,
+                   progress: bool = False) -> RenderResult:
+    """The images ``render_at(wavelength)`` makes at each of ``light``'s wavelengths (default: the white LED at
+    10 nm) seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B`` (sRGB), ``Y`` (the
+    luminance, 1 for the light passed whole) and each wavelength's main channel as ``I.<nm>``. One image per
+    wavelength: a reference for the spectral march that is to share the lookups between wavelengths
+    (issue 37)."""
     from tqdm import tqdm
     from .physics.colour import to_srgb, tristimulus, white_led
     light = white_led(step=10.0) if light is None else light
@@ -181,8 +191,7 @@ def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int 
         warnings.simplefilter("always")
         for wavelength in tqdm(light.wavelengths, desc="white light", unit="wavelength", leave=False,
                                disable=not progress):
-            view = View(polariscope, phase_scale(scene, load_scale, float(wavelength)))
-            result = render(scene, spp=spp, seed=seed, field=field, view=view)
+            result = render_at(float(wavelength))
             bands.append(result.main)
     last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
     for w in last_of_kind.values():

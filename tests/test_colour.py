@@ -132,3 +132,28 @@ def test_the_command_renders_white_light_in_colour(tmp_path, capsys):
     assert main([*arguments, "--wavelength", "600", "-o", str(tmp_path / "refused.exr")]) == 2
     err = capsys.readouterr().err
     assert "leave out the wavelength" in err and "Traceback" not in err and not (tmp_path / "refused.exr").exists()
+
+
+def test_a_slice_in_white_light_shows_the_colour_of_its_slab(tmp_path, capsys):
+    """A slab 4 mm thick cut from a uniformly stressed block (C = 50 Brewster, 3 MPa: 600 nm of retardation in
+    it) shows that retardation's interference colour in the circular dark field; the command writes it."""
+    from mi_nest.cli import main
+    from mi_nest.views import Plane, SliceSpec, slice_render_white_light
+    from scenes import box, medium, scene
+    block = scene([box((20, 20, 20), interior=medium(xx=3.0))], res=2)
+    light = white_led(step=10.0)
+    result = slice_render_white_light(block, SliceSpec(Plane((0, 0, 1), 0.0), 4.0, resolution=8), light=light)
+    inside = result.channels["Y"] > 0.01         # the slab (the dark field is black outside the part)
+    rendered = np.stack([result.channels[c] for c in "RGB"], axis=-1)[inside]
+    np.testing.assert_allclose(rendered, np.broadcast_to(interference_colours(600.0, light), rendered.shape),
+                               atol=2e-4)
+    arguments = ["slice", "disk_compression", "-D", "load=300", "--plane", "z=0", "--thickness", "2", "--res", "16",
+                 "--white-light"]
+    assert main([*arguments, "-o", str(tmp_path / "slice.exr"), "--png", str(tmp_path / "slice.png")]) == 0
+    assert (tmp_path / "slice.png").is_file()
+    capsys.readouterr()
+    for extra, message in ((["--wavelength", "600"], "leave out the wavelength"),
+                           (["--maps", str(tmp_path / "maps.png")], "leave out --white-light or --maps")):
+        assert main([*arguments, *extra, "-o", str(tmp_path / "refused.exr")]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "refused.exr").exists() and not (tmp_path / "maps.png").exists()

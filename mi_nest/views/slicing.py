@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mitsuba as mi
@@ -25,8 +25,9 @@ import numpy as np
 from .. import occupancy
 from ..arguments import whole_number
 from ..arrays import device_array
+from ..physics.colour import Spectrum
 from ..physics.polariscope import Polariscope, polariscope_setting
-from ..render import RenderResult, check_light_and_load, phase_scale, require_memory
+from ..render import RenderResult, check_light_and_load, in_white_light, phase_scale, require_memory
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
 from ..tracer import View
 from ..version import __version__
@@ -231,6 +232,18 @@ def slice_render(scene: mi.Scene, spec: SliceSpec, field: object | None = None) 
     specimen). ``field``, if given, is shown in every specimen instead of its own stress (a reconstruction's).
     For many slices of one scene, keep a :class:`Slicer`."""
     return Slicer(scene).render(spec, field)
+
+
+def slice_render_white_light(scene: mi.Scene, spec: SliceSpec, field: object | None = None,
+                             light: Spectrum | None = None, progress: bool = False) -> RenderResult:
+    """The slab in white light (default: the white LED, ``physics.colour.white_led``), as a photoelastician
+    looks at a frozen-stress slice: its fringes at each of the light's wavelengths seen as colour
+    (``render.in_white_light``: ``R``, ``G``, ``B``, ``Y`` and ``I.<nm>``)."""
+    if spec.wavelength is not None:
+        raise SliceError(f"white light holds every wavelength: leave out the wavelength ({spec.wavelength:g} nm)")
+    slicer = Slicer(scene)
+    return in_white_light(lambda wavelength: slicer.render(replace(spec, wavelength=wavelength), field), light,
+                          progress)
 
 
 @dataclass(frozen=True)
