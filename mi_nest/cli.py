@@ -293,23 +293,17 @@ def _add_polariscope_options(parser):
     parser.add_argument("--wavelength", type=float, help="nm (default: the material's)")
 
 
-# nm between the wavelengths of a white-light render: one render each (41 from 380 to 780 nm).
-WHITE_LIGHT_STEP = 10.0
-
-
 def _render(args):
     from .views import open_source
     from .views.novel import render_view
     from .io.exr import require_exr_name
+    from .render import white_light
     source = open_source(args.scene, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png}, args.scene, source)
     require_exr_name(args.output)
-    light = None
-    if args.white_light:
-        from .physics.colour import white_led
-        light = white_led(step=WHITE_LIGHT_STEP)
     render_view(source, args.azimuth, args.elevation, _polariscope(args), args.load_scale, args.wavelength,
-                spp=args.spp, seed=args.seed, progress=not args.quiet, light=light).write(args.output, args.png)
+                spp=args.spp, seed=args.seed, progress=not args.quiet,
+                light=white_light() if args.white_light else None).write(args.output, args.png)
 
 
 def _refuse_overwriting_source(outputs, text, source):
@@ -593,8 +587,7 @@ def _slice(args):
         if args.maps:
             raise ValueError("--maps draws one wavelength's isochromatic order and isoclinic angle: leave out "
                              "--white-light or --maps")
-        from .physics.colour import white_led
-        result = slice_render_white_light(source.scene, spec, source.field, white_led(step=WHITE_LIGHT_STEP))
+        result = slice_render_white_light(source.scene, spec, source.field)
     else:
         result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)

@@ -141,9 +141,7 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
     # Before the integrator's warnings are repeated: an image refused for NaN pixels needs no warning about them.
     names = integrator.channel_names(film)
     _check_image(scene, total, names, passes)
-    last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
-    for w in last_of_kind.values():
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    said = _warn_once_each(caught)
     seconds = time.perf_counter() - start
     if passes > 1:
         total /= passes
@@ -153,12 +151,29 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
     channels = {name: total[..., index] for index, name in enumerate(names)}
     metadata = {"mi_nest.version": __version__, "mi_nest.spp": spp,
                 "mi_nest.integrator": integrator.class_name()}
-    return RenderResult(channels=channels, seconds=seconds, metadata=metadata,
-                        warnings=[str(w.message) for w in last_of_kind.values()], aliasing=aliasing)
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said, aliasing=aliasing)
+
+
+def _warn_once_each(caught: list[warnings.WarningMessage]) -> list[str]:
+    """Warn again the last of each kind of ``caught`` warnings (every pass or wavelength warns alike), and
+    return their messages."""
+    last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
+    for w in last_of_kind.values():
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return [str(w.message) for w in last_of_kind.values()]
 
 
 # A white-light render's colour image: sRGB, display-encoded, white-balanced to the light.
 COLOUR_CHANNELS = ("R", "G", "B")
+# nm between the wavelengths of a white-light render or slice: one image each (41 from 380 to 780 nm).
+WHITE_LIGHT_STEP = 10.0
+
+
+def white_light() -> Spectrum:
+    """The light white-light renders and slices use unless given another: the white LED panel
+    (``physics.colour.white_led``) every :data:`WHITE_LIGHT_STEP` nm."""
+    from .physics.colour import white_led
+    return white_led(step=WHITE_LIGHT_STEP)
 
 
 def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int | None = None, seed: int = 0,
@@ -176,14 +191,14 @@ def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int 
 
 def in_white_light(render_at: Callable[[float], RenderResult], light: Spectrum | None = None,
                    progress: bool = False) -> RenderResult:
-    """The images ``render_at(wavelength)`` makes at each of ``light``'s wavelengths (default: the white LED at
-    10 nm) seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B`` (sRGB), ``Y`` (the
+    """The images ``render_at(wavelength)`` makes at each of ``light``'s wavelengths (default:
+    :func:`white_light`) seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B`` (sRGB), ``Y`` (the
     luminance, 1 for the light passed whole) and each wavelength's main channel as ``I.<nm>``. One image per
     wavelength: a reference for the spectral march that is to share the lookups between wavelengths
     (issue 37)."""
     from tqdm import tqdm
-    from .physics.colour import to_srgb, tristimulus, white_led
-    light = white_led(step=10.0) if light is None else light
+    from .physics.colour import to_srgb, tristimulus
+    light = white_light() if light is None else light
     start = time.perf_counter()
     bands = []
     # Every wavelength warns alike (aliasing): report each kind once, the last wavelength's.
@@ -193,17 +208,14 @@ def in_white_light(render_at: Callable[[float], RenderResult], light: Spectrum |
                                disable=not progress):
             result = render_at(float(wavelength))
             bands.append(result.main)
-    last_of_kind = {(w.category, w.filename, w.lineno): w for w in caught}
-    for w in last_of_kind.values():
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    said = _warn_once_each(caught)
     spectrum = np.stack(bands, axis=-1).astype(np.float64)
     channels = dict(zip(COLOUR_CHANNELS, np.moveaxis(to_srgb(spectrum, light).astype(np.float32), -1, 0)))
     channels["Y"] = tristimulus(spectrum, light)[..., 1].astype(np.float32)
     channels.update({f"I.{wavelength:g}": band for wavelength, band in zip(light.wavelengths, bands)})
     metadata = {**result.metadata, "mi_nest.light": light.name,
                 "mi_nest.wavelengths": ",".join(f"{w:g}" for w in light.wavelengths)}
-    return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata,
-                        warnings=[str(w.message) for w in last_of_kind.values()])
+    return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata, warnings=said)
 
 
 # Bytes per sample beyond its channels during a pass (ray, loop state). With it the estimate below stayed

@@ -4,7 +4,7 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeCameraPart
 
-from mi_nest.physics.polariscope import Polarizer, Waveplate
+from mi_nest.physics.polariscope import standard_polariscope
 
 from .properties import angle_property, optics_property
 
@@ -72,9 +72,8 @@ class PolariscopeCamera(mi.Sensor):
         self.projection = projection
         self.optics = optics_property(props, "optics", "polariscope", ("analyzer", "qwp"))
         if self.optics is None:
-            analyzer, qwp = angle_property(props, "analyzer", 0.0), angle_property(props, "qwp", None)
-            self.optics = ((() if qwp is None else (Waveplate(qwp),))
-                           + (() if analyzer is None else (Polarizer(analyzer),)))
+            self.optics = standard_polariscope(output_qwp=angle_property(props, "qwp", None),
+                                               analyzer=angle_property(props, "analyzer", 0.0)).camera
         camera = {key: props[key] for key in props.keys()
                   if key not in _OWN_PROPERTIES and not isinstance(props[key], (mi.Film, mi.Sampler))}
         camera.update(type=projection, film=self.film(), sampler=self.sampler())

@@ -6,7 +6,7 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeLightPart
 
-from mi_nest.physics.polariscope import Polarizer, Waveplate
+from mi_nest.physics.polariscope import Polarizer, standard_polariscope
 
 from .properties import angle_property, optics_property
 
@@ -77,8 +77,8 @@ class PolariscopeLight(mi.Emitter):
         super().__init__(props)
         self.optics = optics_property(props, "optics", "polariscope_light", ("polarizer", "qwp"))
         if self.optics is None:
-            polarizer, qwp = angle_property(props, "polarizer", 90.0), angle_property(props, "qwp", None)
-            self.optics = (Polarizer(polarizer),) + (() if qwp is None else (Waveplate(qwp),))
+            self.optics = standard_polariscope(polarizer=angle_property(props, "polarizer", 90.0),
+                                               input_qwp=angle_property(props, "qwp", None)).light
         elif not isinstance(self.optics[0], Polarizer):
             raise ValueError(f"polariscope_light: 'optics' starts with the panel's polariser, got "
                              f"'{props['optics']}'")
