@@ -139,7 +139,7 @@ def render(scene: mi.Scene | str | Path, spp: int | None = None, seed: int = 0, 
             total = image if total is None else total + image
             bar.update()
     # Before the integrator's warnings are repeated: an image refused for NaN pixels needs no warning about them.
-    names = integrator.channel_names(film)
+    names = integrator.channel_names(film, view)
     _check_image(scene, total, names, passes)
     said = _warn_once_each(caught)
     seconds = time.perf_counter() - start
@@ -180,40 +180,72 @@ def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int 
                        progress: bool = False, field: StressField | None = None,
                        polariscope: Polariscope | None = None, load_scale: float = 1.0) -> RenderResult:
     """``scene`` seen in white light (default: the white LED panel, ``physics.colour.white_led``): the main
-    channel rendered at each of the light's wavelengths, every phase scaled by ``C(lambda) / lambda``
+    channel at each of the light's wavelengths, every phase scaled by ``C(lambda) / lambda``
     (:func:`phase_scale`, the media's dispersion) with the polariscope's elements taken as achromatic, the same
-    samples at every wavelength (one seed), and the spectrum seen as colour (:func:`in_white_light`)."""
-    def render_at(wavelength: float) -> RenderResult:
-        view = View(polariscope, phase_scale(scene, load_scale, wavelength))
-        return render(scene, spp=spp, seed=seed, field=field, view=view)
-    return in_white_light(render_at, light, progress)
+    samples at every wavelength (one seed), and the spectrum seen as colour (:func:`in_white_light`).
+
+    Up to :data:`LANES_PER_MARCH` wavelengths share each march (``tracer/spectral.py``: the stress looked up
+    once for all); through refracting surfaces, or with ``rk4``, one render per wavelength.
+    """
+    light = white_light() if light is None else light
+
+    def render_group(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
+        lanes = tuple((f"lane.{index}", phase_scale(scene, load_scale, w)) for index, w in enumerate(wavelengths))
+        result = render(scene, spp=spp, seed=seed, field=field, view=View(polariscope, 1.0, lanes))
+        return [result.channels[name] for name, _ in lanes], result.metadata
+
+    def render_each(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
+        result = render(scene, spp=spp, seed=seed, field=field,
+                        view=View(polariscope, phase_scale(scene, load_scale, wavelengths[0])))
+        return [result.main], result.metadata
+
+    if photoelastic_integrator(scene).tracer.marches_spectra(scene, scene_sensor(scene)):
+        return in_white_light(render_group, light, progress, LANES_PER_MARCH)
+    return in_white_light(render_each, light, progress)
 
 
-def in_white_light(render_at: Callable[[float], RenderResult], light: Spectrum | None = None,
-                   progress: bool = False) -> RenderResult:
-    """The images ``render_at(wavelength)`` makes at each of ``light``'s wavelengths (default:
-    :func:`white_light`) seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B`` (sRGB), ``Y`` (the
-    luminance, 1 for the light passed whole) and each wavelength's main channel as ``I.<nm>``. One image per
-    wavelength: a reference for the spectral march that is to share the lookups between wavelengths
-    (issue 37)."""
+def wavelength_channel(wavelength: float) -> str:
+    """The channel of a white-light render that holds one wavelength's image."""
+    return f"I.{wavelength:g}"
+
+
+# Most wavelengths one march of a white-light render carries: per wavelength, 16 lanes cost as little as 8 or
+# less (benchmarks/spectral.py, docs/physics.md section 9); more compile longer.
+LANES_PER_MARCH = 16
+
+
+def in_white_light(render_group: Callable[[list[float]], tuple[list[np.ndarray], dict]],
+                   light: Spectrum | None = None, progress: bool = False, per_call: int = 1) -> RenderResult:
+    """The images ``render_group(wavelengths)`` makes (with its metadata) at each of ``light``'s wavelengths
+    (default: :func:`white_light`), seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B``
+    (sRGB), ``Y`` (the luminance, 1 for the light passed whole) and each wavelength's image as ``I.<nm>``.
+
+    ``render_group`` takes up to ``per_call`` wavelengths at a time, always as many: the last group is padded
+    with its last wavelength (whose image is dropped), so that every call launches the same kernel.
+    """
     from tqdm import tqdm
     from .physics.colour import to_srgb, tristimulus
     light = white_light() if light is None else light
     start = time.perf_counter()
+    wavelengths = [float(w) for w in light.wavelengths]
     bands = []
-    # Every wavelength warns alike (aliasing): report each kind once, the last wavelength's.
-    with warnings.catch_warnings(record=True) as caught:
+    # Every call warns alike (aliasing): report each kind once, the last call's.
+    with warnings.catch_warnings(record=True) as caught, \
+            tqdm(total=len(wavelengths), desc="white light", unit="wavelength", leave=False,
+                 disable=not progress) as bar:
         warnings.simplefilter("always")
-        for wavelength in tqdm(light.wavelengths, desc="white light", unit="wavelength", leave=False,
-                               disable=not progress):
-            result = render_at(float(wavelength))
-            bands.append(result.main)
+        size = math.ceil(len(wavelengths) / math.ceil(len(wavelengths) / per_call))
+        for first in range(0, len(wavelengths), size):
+            group = wavelengths[first:first + size]
+            images, metadata = render_group(group + group[-1:] * (size - len(group)))
+            bands += images[:len(group)]
+            bar.update(len(group))
     said = _warn_once_each(caught)
     spectrum = np.stack(bands, axis=-1).astype(np.float64)
     channels = dict(zip(COLOUR_CHANNELS, np.moveaxis(to_srgb(spectrum, light).astype(np.float32), -1, 0)))
     channels["Y"] = tristimulus(spectrum, light)[..., 1].astype(np.float32)
-    channels.update({f"I.{wavelength:g}": band for wavelength, band in zip(light.wavelengths, bands)})
-    metadata = {**result.metadata, "mi_nest.light": light.name,
+    channels.update({wavelength_channel(wavelength): band for wavelength, band in zip(wavelengths, bands)})
+    metadata = {**metadata, "mi_nest.light": light.name,
                 "mi_nest.wavelengths": ",".join(f"{w:g}" for w in light.wavelengths)}
     return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata, warnings=said)
 

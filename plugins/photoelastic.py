@@ -136,7 +136,8 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
         self.tracer = Tracer(replace(self.tracer.config, **changes))
 
     def aov_names(self) -> list[str]:
-        return list(CHANNELS)
+        # During a spectral render, its wavelengths' channels follow (Mitsuba's render asks while it prepares).
+        return list(CHANNELS) + list(self._plan.lanes if self._plan is not None else ())
 
     def to_string(self) -> str:
         config = self.tracer.config
@@ -144,9 +145,9 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 f"points={config.points}, jitter={config.jitter}, max_crossings={config.max_crossings}, "
                 f"max_bounces={config.max_bounces}]")
 
-    def channel_names(self, film: mi.Film) -> list[str]:
-        """Names of the channels of the image :meth:`render` returns, in order."""
-        return films.channel_names(film)
+    def channel_names(self, film: mi.Film, view: View = SCENE_VIEW) -> list[str]:
+        """Names of the channels of the image :meth:`render` returns with ``view``, in order."""
+        return films.channel_names(film, view.lane_names)
 
     def check_scene(self, scene: mi.Scene, sensor: int | mi.Sensor = 0) -> None:
         """Raise :class:`~mi_nest.tracer.guards.SceneSetupError` naming what the scene lacks.
@@ -183,7 +184,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
                 image, guarded = self._render_pixel_sums(scene, sensor, seed, spp)
             else:
                 image = super().render(scene, sensor, seed, spp)
-                guarded = films.guarded_channels(image)
+                guarded = films.guarded_channels(image, len(plan.lanes))
             if plan.norm_error is not None:
                 guards.warn_if_not_unitary(float(plan.norm_error[0]), plan.decision.step_size)
             return image, guards.check_aliasing(*guarded)

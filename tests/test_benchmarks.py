@@ -12,7 +12,7 @@ Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's k
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
 dataset 8.2, accuracy_suite 7.4, separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
-grid_lookup 0.7, forward 0.7: 125 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
+grid_lookup 0.7, forward 0.7, spectral 3.5: 129 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
 refraction took 31 s). None is marked slow: the module fits in the default run.
 """
 from __future__ import annotations
@@ -116,6 +116,13 @@ CASES = {
     "smoothness": (["--repeats", "2"],
                    [r"edge None: automatic [\d.]+ ms, custom op [\d.]+ ms, ratio [\d.]+x",
                     r"edge 0\.5: automatic [\d.]+ ms, custom op [\d.]+ ms, ratio [\d.]+x"], []),
+    "spectral": (["--res", "16", "--lanes", "1", "3", "--repeats", "1", "--grid-nodes", "8"],
+                 [r"field +path +waves +one march s .*",
+                  r"grid +rays +3 +[\d.]+ +[\d.]+ +[\d.e+]+ +[\d.]+ +[\d.]+x +[\d.e+-]+",
+                  r"white light, disk_compression at 300 N, 16x16, 41 wavelengths: [\d.]+ s in spectral marches, "
+                  r"[\d.]+ s one render per wavelength \([\d.]+x\); sRGB differs by .*",
+                  r"analytic: 3 wavelengths in one march cost [\d.]+ \(render\) and [\d.]+ \(ray batch\) times one "
+                  r"wavelength's \(target: well under 3\)"], []),
     "time_to_accuracy": (["--baseline", "{root}", "--output", "{tmp}/tta", "--flags=--fast", "--rotations", "2",
                           "--iterations", "5"],
                          [r"disk +baseline +5 it +[\d.]+ s +error .*",

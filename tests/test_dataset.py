@@ -12,7 +12,7 @@ from mi_nest.dataset.camera import MOSAIC, mosaic_mask
 from mi_nest.dataset.format import rotation_header
 from mi_nest.dataset.masks import agreement, linear_settings, min_dolp
 from mi_nest.dataset.schedule import Rotation, angles, camera_to_world, rotation_grid
-from mi_nest.dataset.simulate import WRITE_QUEUE
+from mi_nest.dataset.simulate import WRITE_QUEUE, WRITERS
 from mi_nest.io.exr import write_channels
 from mi_nest.physics import MEASUREMENTS, su2
 from mi_nest.physics.aliasing import ALIASED_FRACTION, NYQUIST
@@ -155,10 +155,11 @@ def test_an_interrupted_simulation_resumes_to_an_identical_dataset(tmp_path, dis
         simulate("disk_compression", resumed, settings, progress=False, on_rotation=kill_after_five)
     with pytest.raises(DatasetError, match="incomplete"):
         Dataset(resumed)
-    # Rotations 0 to 5 are on disk, and the ones rendered while the writer wrote them are written too (up to the
-    # writer's queue and the one rendering): an interrupted run keeps all it rendered.
+    # Rotations 0 to 5 are on disk, and the ones rendered while the writers wrote them are written too: an
+    # interrupted run keeps all it rendered. The run learns that rotation 5 is on disk after its next render, so
+    # up to the queue and one rotation per writer thread follow it (12 seen once on a busy machine).
     on_disk = len(Dataset(resumed, allow_incomplete=True))
-    assert 6 <= on_disk <= 6 + WRITE_QUEUE + 1
+    assert 6 <= on_disk <= 6 + WRITE_QUEUE + WRITERS
     report = simulate("disk_compression", resumed, settings, progress=False)
     assert (report.rendered, report.kept) == (16 - on_disk, on_disk)
     a, b = Dataset(whole), Dataset(resumed)

@@ -11,7 +11,7 @@ import pytest
 
 from mi_nest.physics import jones
 from mi_nest.reconstruct.fields import FieldConfig, make_field
-from mi_nest.tracer import PathKind, Tracer, TracerConfig
+from mi_nest.tracer import SCENE_VIEW, PathKind, Tracer, TracerConfig, View
 from scenes import box, scene
 
 # Stress that gives about a radian per mm of path: a few radians across the 4 mm box, so the
@@ -65,28 +65,52 @@ def test_replayed_gradient_matches_finite_differences(kind, method):
     assert max(np.abs(g).max() for g in gradients.values()) > 1e-3
 
 
-def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest):
-    """The replayed gradient of ``loss(jones)`` over ``rays`` against central differences: the gradients, how
-    many entries were checked, and the traced rays."""
+@pytest.mark.parametrize("method", ["product", "linear", "magnus4"])
+def test_replayed_gradient_of_a_spectral_march_matches_finite_differences(method):
+    """Three wavelengths in one march (one lookup per step for all), each lane weighted on its own."""
+    loaded = _specimen()
+    integrator = mi.load_dict({"type": "photoelastic", "method": method, "step_size": 0.4, "jitter": True,
+                               "max_bounces": 0})
+    field = _field("grid")
+    rays, _ = _batch()
+    rng = np.random.default_rng(11)
+    view = View(lanes=(("short", 1.3), ("middle", 1.0), ("long", 0.75)))
+    weights = [[mi.Float(rng.normal(size=RAYS).astype(np.float32)) for _ in range(4)] for _ in view.lanes]
+
+    def loss(lanes):
+        assert len(lanes) == 3
+        return sum(dr.sum(w * x) for lane, lane_weights in zip(lanes, weights) for w, x in zip(lane_weights, lane))
+
+    gradients, checked, traced = _replayed_against_finite_differences(loaded, integrator, field, rays, loss,
+                                                                      largest=3, view=view)
+    assert traced.kind is PathKind.SPECTRAL
+    assert checked >= 3
+    assert max(np.abs(g).max() for g in gradients.values()) > 1e-3
+
+
+def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest, view=SCENE_VIEW):
+    """The replayed gradient of ``loss(jones)`` over ``rays`` (seen in ``view``) against central differences: the
+    gradients, how many entries were checked, and the traced rays."""
     right = mi.Vector3f(1, 0, 0)
 
     def value(parameters):
         field.assign(parameters)
         with dr.suspend_grad():
-            return float(loss(integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field).jones())[0])
+            traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field, view=view)
+            return float(loss(traced.jones())[0])
 
     base = {name: type(v)(np.array(v)) for name, v in field.parameters().items()}
     variables = {name: type(v)(v) for name, v in base.items()}
     for v in variables.values():
         dr.enable_grad(v)
     field.assign(variables)
-    traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field)
+    traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field, view=view)
     with dr.resume_grad():
         leaf = tuple(mi.Float(x) for x in traced.state)
         dr.enable_grad(leaf)
         dr.backward(loss(traced.jones(leaf)))
         state_grad = dr.grad(leaf)
-    integrator.tracer.backpropagate_rays(loaded, rays, right, traced, state_grad, seed=5, field=field)
+    integrator.tracer.backpropagate_rays(loaded, rays, right, traced, state_grad, seed=5, field=field, view=view)
     gradients = {name: np.array(dr.grad(v)).ravel() for name, v in variables.items()}
     return gradients, _matches_finite_differences(value, base, gradients, largest), traced
 

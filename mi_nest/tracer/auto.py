@@ -102,7 +102,7 @@ def sample_lines(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor) -> tuple
         inside = (crossings[:, :, None] < (s - s[0])[None, None, :]).sum(axis=0) % 2 == 1
         if not inside.any():
             continue
-        generator = generator_field(setup.phase_tensors[medium], u, v)
+        generator = generator_field(setup.phase_tensors[medium], u, v, setup.strongest_phase_scale)
         p, q = generator(points.reshape(inside.shape + (3,)))
         rates.append(analyse_lines(p, q, s[1] - s[0], inside))
         lines.append((generator, p, q, inside, starts, crossings))
@@ -141,9 +141,12 @@ def choose(setup: SceneSetup, scene: mi.Scene, sensor: mi.Sensor, tolerance: flo
         f"doubling on {count} chords estimates an error of {error:.2g} (tolerance {tolerance:g})")
 
 
-def generator_field(phase_tensor: Callable, u: np.ndarray, v: np.ndarray) -> GeneratorField:
-    """NumPy ``points -> (p, q)``: the step generator per mm of a ``phase_tensor`` in the basis (u, v)."""
+def generator_field(phase_tensor: Callable, u: np.ndarray, v: np.ndarray, scale: float = 1.0) -> GeneratorField:
+    """NumPy ``points -> (p, q)``: the step generator per mm of a ``phase_tensor`` in the basis (u, v), times
+    ``scale`` (a view's factor on every phase)."""
     coefficients = projection.projection_coefficients(tuple(map(float, u)), tuple(map(float, v)))
+    if scale != 1.0:
+        coefficients = tuple(tuple(scale * c for c in part) for part in coefficients)
 
     def generator(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # One kernel from points to (p, q): projected where the field is sampled, two arrays come back, not six.

@@ -43,24 +43,26 @@ def develops_directly(film: mi.Film) -> bool:
     return film.class_name() == "HDRFilm" and mi.is_monochromatic
 
 
-def channel_names(film: mi.Film) -> list[str]:
-    """Names of the channels of the image a render onto ``film`` returns, in order."""
+def channel_names(film: mi.Film, lanes: tuple[str, ...] = ()) -> list[str]:
+    """Names of the channels of the image a render onto ``film`` returns, in order; ``lanes``: a spectral
+    render's wavelengths' channels, after :data:`CHANNELS`."""
     if sums_pixels_directly(film) and develops_directly(film):
         alpha = ["A"] if mi.has_flag(film.flags(), mi.FilmFlags.Alpha) else []
-        return ["Y"] + alpha + list(CHANNELS)
+        return ["Y"] + alpha + list(CHANNELS) + list(lanes)
     return [str(f.name) for f in film.bitmap().struct_()]
 
 
-def guarded_channels(image: mi.TensorXf) -> tuple[np.ndarray, np.ndarray]:
-    """The fringe order and path length of a developed image, as ``(H, W)`` host arrays."""
+def guarded_channels(image: mi.TensorXf, lanes: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The fringe order and path length of a developed image (``lanes`` spectral channels after the AOVs), as
+    ``(H, W)`` host arrays."""
     pixels = image.numpy()      # shares the evaluated image's memory on the LLVM backend
-    return tuple(pixels[..., i] for i in _guarded_positions(image.shape[-1]))
+    return tuple(pixels[..., i] for i in _guarded_positions(image.shape[-1], lanes))
 
 
 def develop_pixel_sums(film: mi.Film, spp: int, value: mi.Float,
                        aovs: list[mi.Float]) -> tuple[mi.TensorXf, tuple[np.ndarray, np.ndarray]]:
-    """The developed image of per-sample ``value`` and ``aovs`` (``spp`` consecutive samples per pixel),
-    left in ``film``.
+    """The developed image of per-sample ``value`` and ``aovs`` (``spp`` consecutive samples per pixel; the
+    :data:`CHANNELS`, then a spectral render's lanes), left in ``film``.
 
     Returns the image and, for the aliasing guard, its fringe order and path
     length as contiguous ``(H, W)`` host arrays: read from the interleaved
@@ -72,12 +74,13 @@ def develop_pixel_sums(film: mi.Film, spp: int, value: mi.Float,
     channels = [value, value, value] + ([one] if alpha else [])
     channels += [one] + aovs
     sums = _pixel_sums(spp, channels)
-    guarded = [sums[i] for i in _guarded_positions(len(sums))]
+    lanes = len(aovs) - len(CHANNELS)
+    guarded = [sums[i] for i in _guarded_positions(len(sums), lanes)]
     width, height = film.crop_size()
     if develops_directly(film):
         # What film.develop() would return, written by the march's own kernel: the film's put,
         # conversion and normalisation passes over the image cost 7% of a 256-step 256^2 render.
-        developed = sums[:1] + sums[3:4 if alpha else 3] + sums[len(sums) - len(CHANNELS):]
+        developed = sums[:1] + sums[3:4 if alpha else 3] + sums[len(sums) - len(aovs):]
         image = _interleave([x / spp for x in developed], height, width)
         dr.eval(image, guarded)
         film.put_block(mi.ImageBlock(tensor=_film_sums(image, spp, alpha), offset=film.crop_offset(),
@@ -90,9 +93,10 @@ def develop_pixel_sums(film: mi.Film, spp: int, value: mi.Float,
     return image, tuple(x.numpy().reshape(height, width) / spp for x in guarded)
 
 
-def _guarded_positions(count):
-    """Where the aliasing guard's channels sit among ``count`` channels that end with the AOVs."""
-    return [count - len(CHANNELS) + CHANNELS.index(name) for name in GUARDED_CHANNELS]
+def _guarded_positions(count, lanes):
+    """Where the aliasing guard's channels sit among ``count`` channels that end with the AOVs, then ``lanes``
+    spectral channels."""
+    return [count - lanes - len(CHANNELS) + CHANNELS.index(name) for name in GUARDED_CHANNELS]
 
 
 def _pixel_sums(spp, channels):

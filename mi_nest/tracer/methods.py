@@ -116,13 +116,38 @@ class Method:
 
 
 class ChainMethod(Method):
-    """A product of unitary per-step propagators (``product``, ``magnus4``)."""
+    """A product of unitary per-step propagators (``product``, ``magnus4``).
+
+    Its march and replay multiply in the algebra below: one unit quaternion per
+    ray; a spectral march's (``spectral.py``) is one per wavelength.
+    """
 
     replays_bent_paths = True
 
     def step(self, sample: StepSample) -> tuple[su2.Quaternion, Fringe]:
         """The step's propagator and ``(b, c)`` of its mean generator times its length."""
         raise NotImplementedError
+
+    def identity(self) -> su2.Quaternion:
+        return su2.identity(mi.Float(0))
+
+    def multiply(self, a: su2.Quaternion, b: su2.Quaternion) -> su2.Quaternion:
+        return su2.multiply(a, b)
+
+    def multiply_renormalized(self, a: su2.Quaternion, b: su2.Quaternion) -> su2.Quaternion:
+        return su2.multiply_renormalized(a, b)
+
+    def renormalize(self, a: su2.Quaternion) -> su2.Quaternion:
+        return su2.renormalize(a)
+
+    def conjugate(self, a: su2.Quaternion) -> su2.Quaternion:
+        return su2.conjugate(a)
+
+    def start(self) -> su2.Quaternion:
+        return self.identity()
+
+    def accumulate(self, state: su2.Quaternion, segment: su2.Quaternion) -> su2.Quaternion:
+        return self.multiply(state, segment)
 
     @dr.syntax
     def march(self, segment: Segment, setup: SceneSetup) -> tuple[su2.Quaternion, Fringe]:
@@ -139,24 +164,24 @@ class ChainMethod(Method):
         indices past the end are zero-length steps, which change nothing.
         """
         half = (segment.steps + 3) // 4 * 2
-        front = su2.identity(mi.Float(0))
-        back = su2.identity(mi.Float(0))
+        front = self.identity()
+        back = self.identity()
         fringe = (mi.Float(0), mi.Float(0))
         i = mi.UInt32(0)
         while dr.hint(i < half, exclude=[half, segment, self, setup]):
             front_steps, front_fringe = self._two_steps(segment, setup, i)
             back_steps, back_fringe = self._two_steps(segment, setup, i + half)
-            front = su2.multiply_renormalized(front, front_steps)
-            back = su2.multiply_renormalized(back, back_steps)
+            front = self.multiply_renormalized(front, front_steps)
+            back = self.multiply_renormalized(back, back_steps)
             fringe = _add(fringe, _add(front_fringe, back_fringe))
             i += 2
-        return su2.multiply(front, back), fringe
+        return self.multiply(front, back), fringe
 
     def _two_steps(self, segment: Segment, setup: SceneSetup, index: mi.UInt32) -> tuple[su2.Quaternion, Fringe]:
         """Steps ``index`` and ``index + 1`` as one propagator, and their fringe."""
         first, first_fringe = self.step(SegmentStep(segment, setup, index))
         second, second_fringe = self.step(SegmentStep(segment, setup, index + 1))
-        return su2.multiply(first, second), _add(first_fringe, second_fringe)
+        return self.multiply(first, second), _add(first_fringe, second_fringe)
 
     def march_chords(self, generator: GeneratorField, starts: np.ndarray, direction: np.ndarray,
                      lengths: np.ndarray, step_size: float) -> su2.Quaternion:
@@ -175,7 +200,7 @@ class ChainMethod(Method):
         return su2.Quaternion(tuple(x[:, 0] for x in q))
 
     def replay_start(self, state: su2.Quaternion) -> tuple[su2.Quaternion, su2.Quaternion]:
-        return su2.identity(mi.Float(0)), su2.Quaternion(tuple(mi.Float(x) for x in state))
+        return self.identity(), tuple(mi.Float(x) for x in state)
 
     @dr.syntax
     def replay(self, progress: tuple[su2.Quaternion, su2.Quaternion], state_grad: su2.Quaternion, segment: Segment,
@@ -192,10 +217,10 @@ class ChainMethod(Method):
             with dr.resume_grad():
                 propagator, _ = self.step(SegmentStep(segment, setup, i))
                 unit = dr.detach(propagator)
-                after = su2.renormalize(su2.multiply(su2.conjugate(unit), after))
-                adjoint = su2.multiply(su2.multiply(su2.conjugate(before), state_grad), su2.conjugate(after))
+                after = self.renormalize(self.multiply(self.conjugate(unit), after))
+                adjoint = self.multiply(self.multiply(self.conjugate(before), state_grad), self.conjugate(after))
                 dr.backward_from(_dot(adjoint, propagator))
-            before = su2.multiply_renormalized(before, unit)
+            before = self.multiply_renormalized(before, unit)
             i += 1
         return before, after
 

@@ -37,6 +37,9 @@ class SceneSetup:
     def __init__(self, scene: mi.Scene, sensor: mi.Sensor | None, right: mi.Vector3f | None = None,
                  field: StressField | None = None, phase_scale: float = 1.0, marching: bool = True):
         self.phase_scale = phase_scale
+        # The largest factor on the phases a march here multiplies (a spectral march's shortest wavelength's):
+        # what ``auto`` chooses its steps for.
+        self.strongest_phase_scale = phase_scale
         self.media = []
         self.specimens = []     # (shape, index of its medium), in scene order
         shape_media = {}

@@ -26,6 +26,7 @@ from .methods import Decision, Method
 from .segment import Segment, equal_steps
 from .registry import method_named, require_adjoint, require_replay_through_refraction
 from .setup import SceneSetup
+from .spectral import can_march_spectra, spectral
 from .walk import past_panel, walk
 
 
@@ -59,13 +60,27 @@ class TracerConfig:
 @dataclass(frozen=True)
 class View:
     """What a view changes without loading the scene again: a polariscope instead of the scene's (None: the
-    scene's) and a factor on every phase (a load scale, or a wavelength's ratio)."""
+    scene's), a factor on every phase (a load scale, or a wavelength's ratio) and, for a spectral march
+    (``spectral.py``), its wavelengths as ``(channel name, factor on phase_scale)`` pairs: each adds its main
+    intensity as that channel (none: one wavelength)."""
     polariscope: Polariscope | None = None
     phase_scale: float = 1.0
+    lanes: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self):
         if not math.isfinite(self.phase_scale):
             raise ValueError(f"photoelastic: the phase scale must be a finite number, got {self.phase_scale}")
+        names = [name for name, _ in self.lanes]
+        if len(set(names)) != len(names) or set(names) & set(CHANNELS):
+            raise ValueError(f"photoelastic: a spectral view's channel names must be distinct and not the "
+                             f"integrator's own channels, got {names}")
+        bad = [factor for _, factor in self.lanes if not (math.isfinite(factor) and factor > 0)]
+        if bad:
+            raise ValueError(f"photoelastic: a spectral view's phase factors must be positive numbers, got {bad}")
+
+    @property
+    def lane_names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.lanes)
 
 
 SCENE_VIEW = View()
@@ -88,9 +103,11 @@ class OpaquePolariscope:
 
 @dataclass
 class TracePlan:
-    """What the calls inside one render or ray batch share: the scene set-up and the method decided for it."""
+    """What the calls inside one render or ray batch share: the scene set-up, the method decided for it
+    (spectral where the view has lanes) and the lanes' channel names."""
     setup: SceneSetup
     decision: Decision
+    lanes: tuple[str, ...] = ()
     norm_error: mi.Float | None = None      # a method that is not unitary: how far |J|^2 drifted
 
 
@@ -99,6 +116,7 @@ class PathKind(enum.Enum):
     STRAIGHT = "straight"           # the method's state: a Jones quaternion, or linear's summed generator
     REFRACTED = "refracted"         # the bent path's general Jones matrix, 8 numbers
     GHOSTED = "refracted, with a ghost"     # and a sampled partly reflected path's after it: 16 numbers
+    SPECTRAL = "straight, at several wavelengths"   # a spectral march's state (spectral.py)
 
 
 @dataclass(frozen=True)
@@ -111,13 +129,16 @@ class TracedRays:
     blocked: mi.Bool
     length: mi.Float
 
-    def jones(self, state: tuple | None = None) -> su2.Quaternion | jones.Biquaternion | jones.Incoherent:
+    def jones(self, state: tuple | None = None) -> su2.Quaternion | jones.Biquaternion | jones.Incoherent | list:
         """The Jones matrices of ``state`` (default: the traced one; a differentiable copy of it to take a loss's
-        gradient), zero where blocked; a ghost's is added incoherently (zero where it has none)."""
+        gradient), zero where blocked; a ghost's is added incoherently (zero where it has none); a spectral
+        batch's, one quaternion per wavelength."""
         return _jones(self.kind, self.method, self.state if state is None else state, self.blocked)
 
 
 def _jones(kind: PathKind, method: Method, state: tuple, blocked: mi.Bool):
+    if kind is PathKind.SPECTRAL:
+        return [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in q)) for q in method.jones_lanes(state)]
     if kind is PathKind.GHOSTED:
         return jones.Incoherent((_jones(PathKind.REFRACTED, method, state[:8], blocked), _biquaternion(state[8:])))
     if kind is PathKind.REFRACTED:
@@ -141,13 +162,25 @@ class Tracer:
         setup = SceneSetup(scene, sensor, right, field, view.phase_scale, marching)
         if view.polariscope is not None:
             setup.polariscope = OpaquePolariscope(view.polariscope)
+        if view.lanes:
+            guards.refuse_refraction(setup, "a march at several wavelengths")
+            # The steps must suit the shortest wavelength's phases, the fastest.
+            setup.strongest_phase_scale = view.phase_scale * max(factor for _, factor in view.lanes)
         if decision is None:
             decision = self.method.decide(setup, scene, sensor,
                                           self.config.step_size if step_size is None else step_size)
             if decision.reason is None:         # a step given, not one 'auto' chose for this field
                 auto.warn_if_coarse(setup, scene, sensor, decision.step_size)
+        if view.lanes:
+            decision = decision._replace(method=spectral(decision.method, tuple(f for _, f in view.lanes)))
         guards.check_steps_per_ray(setup.specimen_diagonal, decision.step_size)
-        return TracePlan(setup, decision)
+        return TracePlan(setup, decision, view.lane_names)
+
+    def marches_spectra(self, scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
+        """Whether several wavelengths can share one march in ``scene`` (:class:`View` ``lanes``): straight
+        paths (no refracting surface) and a method with a spectral march (``spectral.py``)."""
+        refracting = SceneSetup(scene, sensor or scene.sensors()[0], marching=False).refracting
+        return not refracting and (isinstance(self.method, auto.Auto) or can_march_spectra(self.method))
 
     def decide(self, scene: mi.Scene, sensor: mi.Sensor, field: StressField | None = None,
                view: View = SCENE_VIEW) -> Decision:
@@ -156,7 +189,8 @@ class Tracer:
         return self.plan(scene, sensor, field=field, view=view, marching=False).decision
 
     def trace_rays(self, scene: mi.Scene, rays: mi.Ray3f, right: mi.Vector3f, seed: int = 0,
-                   field: StressField | None = None, step_size: float | None = None) -> TracedRays:
+                   field: StressField | None = None, step_size: float | None = None,
+                   view: View = SCENE_VIEW) -> TracedRays:
         """Primal march of arbitrary rays (e.g. a training batch drawn across views).
 
         ``right`` is each ray's image-right direction (its camera's), which fixes
@@ -164,9 +198,10 @@ class Tracer:
         instead of its own stress, with steps of ``step_size`` (default: the
         configuration's). Where surfaces refract the state is the path's general
         Jones matrix, and with ``max_bounces`` a sampled ghost path's after it.
+        ``view`` scales the phases; with lanes, one Jones product per wavelength.
         """
         with dr.suspend_grad():
-            plan = self.plan(scene, None, right, field, step_size=step_size)
+            plan = self.plan(scene, None, right, field, view, step_size=step_size)
             seeds = _ray_seeds(seed, dr.width(rays.o))
             method = plan.decision.method
             if plan.setup.refracting:
@@ -181,20 +216,20 @@ class Tracer:
                                                      method.trace)
             blocked = past_panel(plan.setup, rays, blocked)
             dr.eval(state, blocked, length)
-            return TracedRays(PathKind.STRAIGHT, method, state, blocked, length)
+            return TracedRays(PathKind.SPECTRAL if plan.lanes else PathKind.STRAIGHT, method, state, blocked, length)
 
     def backpropagate_rays(self, scene: mi.Scene, rays: mi.Ray3f, right: mi.Vector3f, traced: TracedRays,
                            state_grad: tuple, seed: int = 0, field: StressField | None = None,
-                           step_size: float | None = None) -> None:
+                           step_size: float | None = None, view: View = SCENE_VIEW) -> None:
         """Accumulate into the field parameters the gradient of ``sum(state_grad . traced.state)``.
 
-        Replays the march of :meth:`trace_rays` (same rays, right, seed, field and
-        step); Jones steps are unitary, so the part of the product still ahead
-        is peeled off with conjugates instead of being stored: memory does not
-        grow with the number of steps.
+        Replays the march of :meth:`trace_rays` (same rays, right, seed, field,
+        step and view); Jones steps are unitary, so the part of the product still
+        ahead is peeled off with conjugates instead of being stored: memory does
+        not grow with the number of steps.
         """
         with dr.suspend_grad():
-            plan = self.plan(scene, None, right, field, step_size=step_size)
+            plan = self.plan(scene, None, right, field, view, step_size=step_size)
             method = plan.decision.method
             require_adjoint(method)
             if plan.setup.refracting:
@@ -316,6 +351,11 @@ class Tracer:
         its, the Jones channels the specimens' own; a ``ghost`` path's (partly reflected, zero where there is
         none) intensities add to them (incoherent light)."""
         setup = plan.setup
+        lanes = []
+        if plan.lanes:      # a spectral march's: the channels of its first wavelength, each one's main intensity
+            lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens[k:k + 4]))
+                     for k in range(0, len(specimens), 4)]
+            specimens = lanes[0]
         q = su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens))
         matrix = q if path_jones is None else _jones(PathKind.REFRACTED, plan.decision.method,
                                                      tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
@@ -327,6 +367,7 @@ class Tracer:
         aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
+        aovs += [radiance * setup.polariscope.intensity(lane) for lane in lanes]
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):

@@ -242,8 +242,11 @@ def slice_render_white_light(scene: mi.Scene, spec: SliceSpec, field: object | N
     if spec.wavelength is not None:
         raise SliceError(f"white light holds every wavelength: leave out the wavelength ({spec.wavelength:g} nm)")
     slicer = Slicer(scene)
-    return in_white_light(lambda wavelength: slicer.render(replace(spec, wavelength=wavelength), field), light,
-                          progress)
+
+    def render_at(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
+        result = slicer.render(replace(spec, wavelength=wavelengths[0]), field)
+        return [result.main], result.metadata
+    return in_white_light(render_at, light, progress)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,143 @@
+"""A spectral march (mi_nest/tracer/spectral.py): several wavelengths marched at once, one stress lookup per step
+for all, against one monochromatic march per wavelength; its refusals and the white-light renders that use it.
+Gradients through it: tests/test_gradients.py."""
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.render import View, phase_scale, render_white_light
+from mi_nest.physics import MEASUREMENTS
+from mi_nest.physics.colour import white_led
+from mi_nest.tracer import PathKind, Tracer, TracerConfig
+from mi_nest.tracer.film import CHANNELS
+from mi_nest.tracer.guards import SceneSetupError
+from scenes import box, medium, scene
+
+WAVELENGTHS = (450.0, 532.0, 650.0)
+
+
+def _lanes(loaded, wavelengths=WAVELENGTHS):
+    return tuple((f"I.{w:g}", phase_scale(loaded, 1.0, w)) for w in wavelengths)
+
+
+@pytest.mark.parametrize("method", ["product", "magnus4", "linear"])
+def test_each_lane_of_a_spectral_render_is_the_monochromatic_render_at_its_wavelength(method):
+    """The stacked disks (axes turning 45 degrees along each ray) at 300 N: several fringes, so a lane at the
+    wrong scale would be far off."""
+    loaded = mi_nest.load_scene("stacked_disks", res=24, spp=1)
+    loaded.integrator().configure(method=method, step_size=0.25)
+    lanes = _lanes(loaded)
+    spectral = mi_nest.render(loaded, view=View(lanes=lanes)).channels
+    for name, scale in lanes:
+        alone = mi_nest.render(loaded, view=View(phase_scale=scale)).channels
+        np.testing.assert_allclose(spectral[name], alone["Y"], atol=5e-4)
+        assert np.abs(alone["Y"] - mi_nest.render(loaded).channels["Y"]).max() > 0.05 or scale == 1.0
+    # The film's own channels are the first wavelength's (its fringe order feeds the aliasing guard).
+    first = mi_nest.render(loaded, view=View(phase_scale=lanes[0][1])).channels
+    for channel in ("Y", "fringe.order", next(iter(MEASUREMENTS)), "jones.b", "path.length"):
+        np.testing.assert_allclose(spectral[channel], first[channel], atol=5e-4)
+
+
+def test_a_spectral_ray_batch_holds_each_wavelength_s_jones_product():
+    loaded = mi_nest.load_scene("stacked_disks", res=8, spp=1)
+    tracer = Tracer(TracerConfig(method="magnus4", step_size=0.25))
+    sensor = loaded.sensors()[0]
+    rays, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(np.random.default_rng(1).uniform(0.2, 0.8, (2, 200))),
+                                mi.Point2f(0.5))
+    right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
+    lanes = _lanes(loaded)
+    traced = tracer.trace_rays(loaded, rays, right, view=View(lanes=lanes))
+    assert traced.kind is PathKind.SPECTRAL and len(traced.state) == 4 * len(lanes)
+    for (_, scale), lane in zip(lanes, traced.jones()):
+        alone = tracer.trace_rays(loaded, rays, right, view=View(phase_scale=scale)).jones()
+        np.testing.assert_allclose(np.array(lane), np.array(alone), atol=2e-5)
+
+
+def test_a_white_light_render_takes_one_march_per_sixteen_wavelengths(monkeypatch):
+    """41 wavelengths in three marches of 14 (the last padded), the colours those of one render per wavelength."""
+    import importlib
+    rendering = importlib.import_module("mi_nest.render")
+    loaded = mi_nest.load_scene("disk_compression", res=16, spp=1, load=300)
+    light = white_led(step=10.0)
+    calls = []
+    real = rendering.render
+    monkeypatch.setattr(rendering, "render", lambda *a, **k: calls.append(len(k["view"].lanes)) or real(*a, **k))
+    spectral = render_white_light(loaded, light)
+    assert calls == [14, 14, 14]
+    monkeypatch.setattr(rendering, "render", real)
+
+    def one_at_a_time(wavelengths):
+        result = real(loaded, view=View(phase_scale=phase_scale(loaded, 1.0, wavelengths[0])))
+        return [result.main], result.metadata
+    reference = rendering.in_white_light(one_at_a_time, light)
+    for channel in ("R", "G", "B", "Y", "I.380", "I.600", "I.780"):
+        np.testing.assert_allclose(spectral.channels[channel], reference.channels[channel], atol=5e-4)
+
+
+def test_auto_chooses_its_steps_for_the_shortest_wavelength():
+    loaded = mi_nest.load_scene("twisted_block", res=16, spp=1)
+    tracer = Tracer(TracerConfig(method="auto"))
+    sensor = loaded.sensors()[0]
+    own = tracer.decide(loaded, sensor)
+    doubled = tracer.decide(loaded, sensor, view=View(phase_scale=2.0))
+    spectral = tracer.decide(loaded, sensor, view=View(lanes=(("long", 1.0), ("short", 2.0))))
+    assert spectral.step_size == doubled.step_size < own.step_size
+    assert spectral.method.lanes == 2 and spectral.method.name == "magnus4"
+
+
+def test_rk4_marches_one_wavelength_at_a_time():
+    loaded = mi_nest.load_scene("disk_compression", res=4, spp=1)
+    loaded.integrator().configure(method="rk4")
+    with pytest.raises(ValueError, match="'rk4' marches one wavelength at a time; .* use 'product'"):
+        mi_nest.render(loaded, view=View(lanes=_lanes(loaded)))
+    assert not loaded.integrator().tracer.marches_spectra(loaded)
+    result = render_white_light(loaded, white_led(step=50.0))      # one render per wavelength instead
+    assert np.isfinite(result.channels["R"]).all()
+
+
+def test_refracting_surfaces_march_one_wavelength_at_a_time():
+    slab = box((20, 20, 4), interior=medium(xx=3.0))
+    slab["bsdf"] = {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}
+    loaded = scene([slab], res=2, max_bounces=0)
+    with pytest.raises(SceneSetupError, match="several wavelengths through refracting surfaces"):
+        mi_nest.render(loaded, view=View(lanes=_lanes(loaded)))
+    assert not loaded.integrator().tracer.marches_spectra(loaded)
+    result = render_white_light(loaded, white_led(step=50.0))
+    assert np.isfinite(result.channels["R"]).all()
+
+
+@pytest.mark.parametrize("lanes, message", [
+    ((("a", 1.0), ("a", 1.2)), "must be distinct"),
+    ((("path.length", 1.0),), "not the integrator's own channels"),
+    ((("a", 0.0),), "must be positive numbers"),
+    ((("a", float("nan")),), "must be positive numbers"),
+])
+def test_a_bad_spectral_view_is_refused(lanes, message):
+    assert "path.length" in CHANNELS
+    with pytest.raises(ValueError, match=message):
+        View(lanes=lanes)
+
+
+def test_one_lane_shares_its_lookups_between_the_lanes():
+    """The kernel of three lanes looks the field up as often as the kernel of one: its texture reads (gathers
+    of a grid field) do not grow with the lanes."""
+    from mi_nest.fields.grid import GridField
+    from mi_nest.io.grid import StressGrid
+    loaded = scene([box((4, 4, 4), interior=medium(xx=1.0))], res=4)
+    grid = GridField(StressGrid(np.random.default_rng(0).normal(size=(4, 4, 4, 6)).astype(np.float32),
+                                np.full(3, -2.0), np.full(3, 2.0)))
+    tracer = Tracer(TracerConfig(method="product", step_size=0.5))
+    rays = mi.Ray3f(mi.Point3f(0.1, 0.2, 10.0), mi.Vector3f(0, 0, -1))
+
+    def gathers(view):
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history_clear()
+            tracer.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0), field=grid, view=view)
+            history = dr.kernel_history()
+        sources = [entry["ir"].getvalue() for entry in history if "ir" in entry]
+        return max(source.count("gather") for source in sources)
+
+    one, three = gathers(View()), gathers(View(lanes=(("a", 0.8), ("b", 1.0), ("c", 1.2))))
+    assert one > 0 and three == one
