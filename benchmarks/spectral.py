@@ -84,15 +84,15 @@ def camera_rays(scene: mi.Scene, res: int) -> tuple[mi.Ray3f, mi.Vector3f]:
 def white_light(args):
     """``render_white_light`` of the shipped disk at 300 N (the white LED's 41 wavelengths) against one render per
     wavelength, both through ``in_white_light``."""
-    from mi_nest.render import in_white_light, render_white_light, white_light as led
+    from mi_nest.render import WavelengthRenders, in_white_light, render_white_light, white_light as led
     disk = mi_nest.load_scene("disk_compression", res=args.res, spp=1, load=300)
     light = led()
 
     def one_at_a_time(wavelengths):
         result = mi_nest.render(disk, view=View(phase_scale=phase_scale(disk, 1.0, wavelengths[0])))
-        return [result.main], result.metadata
+        return [{"Y": result.main}], result
     spectral_seconds, spectral = best_of(args.repeats, lambda: render_white_light(disk, light))
-    each_seconds, each = best_of(args.repeats, lambda: in_white_light(one_at_a_time, light))
+    each_seconds, each = best_of(args.repeats, lambda: in_white_light(WavelengthRenders(one_at_a_time), light))
     difference = max(float(np.abs(spectral.channels[c] - each.channels[c]).max()) for c in ("R", "G", "B"))
     print(f"white light, disk_compression at 300 N, {args.res}x{args.res}, {len(light.wavelengths)} wavelengths: "
           f"{spectral_seconds:.3f} s in spectral marches, {each_seconds:.3f} s one render per wavelength "

@@ -113,6 +113,11 @@ def _parser():
     simulate.add_argument("--bits", type=int, choices=(8, 10, 12, 16), help="quantise to this many bits")
     simulate.add_argument("--mosaic", action="store_true",
                           help="capture through the IMX250MZR 2x2 micro-polariser mosaic and demosaic")
+    simulate.add_argument("--bands", help="colour bands, each with its 16 measurements: 'rgb' (a colour camera's "
+                                          "red, green and blue under the white LED), wavelengths in nm "
+                                          "('450,532,633': narrow bands) or a CSV of a camera's curves "
+                                          "(wavelength,<band>,...); with --mosaic, the IMX250MYR's colour "
+                                          "polarisation mosaic (default: one wavelength, the scene's)")
     simulate.add_argument("--seed", type=int, default=0, help="noise seed (default: 0)")
     simulate.add_argument("--test-fraction", type=float, default=0.2, help="rotations held out (default: 0.2)")
     simulate.add_argument("--float", action="store_true", help="store float32 instead of half floats")
@@ -429,6 +434,7 @@ def _bench(args):
 
 def _simulate(args):
     from .dataset import CameraModel, SimulationSettings, simulate
+    from .physics.bands import parse_bands
     from .io.atomic import refuse_overwriting_inputs
     from .scene import scene_inputs
     refuse_overwriting_inputs({"-o": args.output}, scene_inputs(args.scene, **dict(args.defines)))
@@ -436,7 +442,8 @@ def _simulate(args):
                          seed=args.seed)
     settings = SimulationSettings(azimuths=args.azimuth, elevations=args.elevation, azimuth_range=args.azimuth_range,
                                   elevation_range=args.elevation_range, res=args.res, spp=args.spp,
-                                  test_fraction=args.test_fraction, camera=camera, half=not args.float)
+                                  test_fraction=args.test_fraction, camera=camera, half=not args.float,
+                                  bands=None if args.bands is None else parse_bands(args.bands))
     report = simulate(args.scene, args.output, settings, defines=args.defines)
     print(report.describe())
     print(f"wrote {Path(args.output).resolve()}")

@@ -17,10 +17,13 @@ from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
 from .physics.aliasing import FringeAliasing
+from .physics import MEASUREMENTS
+from .physics.bands import BandSet
 from .physics.colour import Spectrum
 from .physics.polariscope import Polariscope
 from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
 from .tracer import SCENE_VIEW, View
+from .tracer.film import GUARDED_CHANNELS
 from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -180,28 +183,30 @@ def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int 
                        progress: bool = False, field: StressField | None = None,
                        polariscope: Polariscope | None = None, load_scale: float = 1.0) -> RenderResult:
     """``scene`` seen in white light (default: the white LED panel, ``physics.colour.white_led``): the main
-    channel at each of the light's wavelengths, every phase scaled by ``C(lambda) / lambda``
-    (:func:`phase_scale`, the media's dispersion) with the polariscope's elements taken as achromatic, the same
-    samples at every wavelength (one seed), and the spectrum seen as colour (:func:`in_white_light`).
-
-    Up to :data:`LANES_PER_MARCH` wavelengths share each march (``tracer/spectral.py``: the stress looked up
-    once for all); through refracting surfaces, or with ``rk4``, one render per wavelength.
-    """
+    channel at each of the light's wavelengths (:func:`render_wavelengths`) seen as colour
+    (:func:`in_white_light`)."""
     light = white_light() if light is None else light
+    return in_white_light(render_wavelengths(scene, light.wavelengths, spp, seed, field, polariscope, load_scale),
+                          light, progress)
 
-    def render_group(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
-        lanes = tuple((f"lane.{index}", phase_scale(scene, load_scale, w)) for index, w in enumerate(wavelengths))
-        result = render(scene, spp=spp, seed=seed, field=field, view=View(polariscope, 1.0, lanes))
-        return [result.channels[name] for name, _ in lanes], result.metadata
 
-    def render_each(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
-        result = render(scene, spp=spp, seed=seed, field=field,
-                        view=View(polariscope, phase_scale(scene, load_scale, wavelengths[0])))
-        return [result.main], result.metadata
-
-    if photoelastic_integrator(scene).tracer.marches_spectra(scene, scene_sensor(scene)):
-        return in_white_light(render_group, light, progress, LANES_PER_MARCH)
-    return in_white_light(render_each, light, progress)
+def render_bands(scene: mi.Scene, bands: BandSet, spp: int | None = None, seed: int = 0, progress: bool = False,
+                 field: StressField | None = None, polariscope: Polariscope | None = None,
+                 load_scale: float = 1.0) -> RenderResult:
+    """``scene`` seen by a camera with ``bands`` (``physics.bands``: an RGB sensor under a white light, or narrow
+    bands): each band's main channel and 16 measurements as ``<band>`` and ``<band>.<measurement>``, the weighted
+    sums of its wavelengths' renders (:func:`render_wavelengths`). ``path.length``, ``fringe.order`` and the
+    aliasing report are the shortest wavelength's (the densest fringes); ``Y`` is the first band's."""
+    renders = render_wavelengths(scene, bands.wavelengths, spp, seed, field, polariscope, load_scale,
+                                 measurements=True)
+    images, first, last, said, seconds = _wavelength_images(renders, bands.wavelengths, progress, "bands")
+    names = ("Y",) + tuple(MEASUREMENTS)
+    channels = {name: first.channels[name] for name in GUARDED_CHANNELS}
+    for band, combined in zip(bands.names, bands.combine([[image[n] for n in names] for image in images])):
+        channels.update({band if n == "Y" else f"{band}.{n}": c.astype(np.float32) for n, c in zip(names, combined)})
+    channels["Y"] = channels[bands.names[0]]
+    metadata = {**last.metadata, "mi_nest.bands": bands.describe()}
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said, aliasing=first.aliasing)
 
 
 def wavelength_channel(wavelength: float) -> str:
@@ -209,45 +214,87 @@ def wavelength_channel(wavelength: float) -> str:
     return f"I.{wavelength:g}"
 
 
-# Most wavelengths one march of a white-light render carries: per wavelength, 16 lanes cost as little as 8 or
-# less (benchmarks/spectral.py, docs/physics.md section 9); more compile longer.
+# Most wavelengths one march carries: per wavelength, 16 lanes cost as little as 8 or less
+# (benchmarks/spectral.py, docs/physics.md section 9); more compile longer.
 LANES_PER_MARCH = 16
 
+@dataclass(frozen=True)
+class WavelengthRenders:
+    """What renders a scene (or a slice) at a group of up to ``per_call`` wavelengths: ``render(wavelengths)``
+    gives one image dict per wavelength (its main channel as ``Y``) and the call's :class:`RenderResult`."""
+    render: Callable[[list[float]], tuple[list[dict[str, np.ndarray]], RenderResult]]
+    per_call: int = 1
 
-def in_white_light(render_group: Callable[[list[float]], tuple[list[np.ndarray], dict]],
-                   light: Spectrum | None = None, progress: bool = False, per_call: int = 1) -> RenderResult:
-    """The images ``render_group(wavelengths)`` makes (with its metadata) at each of ``light``'s wavelengths
-    (default: :func:`white_light`), seen together as colour (``physics.colour``): channels ``R``, ``G``, ``B``
-    (sRGB), ``Y`` (the luminance, 1 for the light passed whole) and each wavelength's image as ``I.<nm>``.
 
-    ``render_group`` takes up to ``per_call`` wavelengths at a time, always as many: the last group is padded
-    with its last wavelength (whose image is dropped), so that every call launches the same kernel.
-    """
-    from tqdm import tqdm
+def render_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None, seed: int = 0,
+                       field: StressField | None = None, polariscope: Polariscope | None = None,
+                       load_scale: float = 1.0, measurements: bool = False) -> WavelengthRenders:
+    """What renders ``scene`` at some of ``wavelengths``: each one's main channel as ``Y`` (and with
+    ``measurements`` its 16 measurements), every phase scaled by ``C(lambda) / lambda`` (:func:`phase_scale`, the
+    media's dispersion) with the polariscope's elements taken as achromatic, the same samples at every
+    wavelength (one seed). Up to :data:`LANES_PER_MARCH` wavelengths share each march (``tracer/spectral.py``:
+    the stress looked up once for all); through refracting surfaces, or with ``rk4``, one render each."""
+    names = tuple(MEASUREMENTS) if measurements else ()
+
+    def in_one_march(group: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
+        lanes = tuple((f"lane.{index}", phase_scale(scene, load_scale, w)) for index, w in enumerate(group))
+        result = render(scene, spp=spp, seed=seed, field=field,
+                        view=View(polariscope, 1.0, lanes, lane_measurements=measurements))
+        return [{"Y": result.channels[lane], **{n: result.channels[f"{lane}.{n}"] for n in names}}
+                for lane, _ in lanes], result
+
+    def one_at_a_time(group: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
+        result = render(scene, spp=spp, seed=seed, field=field,
+                        view=View(polariscope, phase_scale(scene, load_scale, group[0])))
+        return [{n: result.channels[n] for n in ("Y",) + names}], result
+
+    if photoelastic_integrator(scene).tracer.marches_spectra(scene, scene_sensor(scene)):
+        return WavelengthRenders(in_one_march, LANES_PER_MARCH)
+    return WavelengthRenders(one_at_a_time)
+
+
+def in_white_light(renders: WavelengthRenders, light: Spectrum | None = None, progress: bool = False) -> RenderResult:
+    """The images ``renders`` makes at each of ``light``'s wavelengths (default: :func:`white_light`; a
+    :func:`render_wavelengths`, or a slice's), their main channels seen together as colour
+    (``physics.colour``): channels ``R``, ``G``, ``B`` (sRGB), ``Y`` (the luminance, 1 for the light passed whole)
+    and each wavelength's image as ``I.<nm>``."""
     from .physics.colour import to_srgb, tristimulus
     light = white_light() if light is None else light
-    start = time.perf_counter()
-    wavelengths = [float(w) for w in light.wavelengths]
-    bands = []
-    # Every call warns alike (aliasing): report each kind once, the last call's.
-    with warnings.catch_warnings(record=True) as caught, \
-            tqdm(total=len(wavelengths), desc="white light", unit="wavelength", leave=False,
-                 disable=not progress) as bar:
-        warnings.simplefilter("always")
-        size = math.ceil(len(wavelengths) / math.ceil(len(wavelengths) / per_call))
-        for first in range(0, len(wavelengths), size):
-            group = wavelengths[first:first + size]
-            images, metadata = render_group(group + group[-1:] * (size - len(group)))
-            bands += images[:len(group)]
-            bar.update(len(group))
-    said = _warn_once_each(caught)
+    images, _, last, said, seconds = _wavelength_images(renders, light.wavelengths, progress, "white light")
+    bands = [image["Y"] for image in images]
     spectrum = np.stack(bands, axis=-1).astype(np.float64)
     channels = dict(zip(COLOUR_CHANNELS, np.moveaxis(to_srgb(spectrum, light).astype(np.float32), -1, 0)))
     channels["Y"] = tristimulus(spectrum, light)[..., 1].astype(np.float32)
-    channels.update({wavelength_channel(wavelength): band for wavelength, band in zip(wavelengths, bands)})
-    metadata = {**metadata, "mi_nest.light": light.name,
+    channels.update({wavelength_channel(wavelength): band for wavelength, band in zip(light.wavelengths, bands)})
+    metadata = {**last.metadata, "mi_nest.light": light.name,
                 "mi_nest.wavelengths": ",".join(f"{w:g}" for w in light.wavelengths)}
-    return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata, warnings=said)
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said)
+
+
+def _wavelength_images(renders: WavelengthRenders, wavelengths, progress: bool, description: str):
+    """``(images per wavelength, the first call's result, the last call's, the warnings said, seconds)``.
+
+    ``renders`` takes up to ``per_call`` wavelengths at a time, always as many: the last group is padded with
+    its last wavelength (whose image is dropped), so that every call launches the same kernel. Every call
+    warns alike (aliasing): each kind is said once, the last call's.
+    """
+    from tqdm import tqdm
+    wavelengths = [float(w) for w in wavelengths]
+    size = math.ceil(len(wavelengths) / math.ceil(len(wavelengths) / renders.per_call))
+    start = time.perf_counter()
+    images, results = [], []
+    with warnings.catch_warnings(record=True) as caught, \
+            tqdm(total=len(wavelengths), desc=description, unit="wavelength", leave=False,
+                 disable=not progress) as bar:
+        warnings.simplefilter("always")
+        for first in range(0, len(wavelengths), size):
+            group = wavelengths[first:first + size]
+            group_images, result = renders.render(group + group[-1:] * (size - len(group)))
+            images += group_images[:len(group)]
+            results.append(result)
+            bar.update(len(group))
+    said = _warn_once_each(caught)
+    return images, results[0], results[-1], said, time.perf_counter() - start
 
 
 # Bytes per sample beyond its channels during a pass (ray, loop state). With it the estimate below stayed

@@ -147,7 +147,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
 
     def channel_names(self, film: mi.Film, view: View = SCENE_VIEW) -> list[str]:
         """Names of the channels of the image :meth:`render` returns with ``view``, in order."""
-        return films.channel_names(film, view.lane_names)
+        return films.channel_names(film, view.lane_channels)
 
     def check_scene(self, scene: mi.Scene, sensor: int | mi.Sensor = 0) -> None:
         """Raise :class:`~mi_nest.tracer.guards.SceneSetupError` naming what the scene lacks.

@@ -12,7 +12,7 @@ Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's k
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
 dataset 8.2, accuracy_suite 7.4, separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
-grid_lookup 0.7, forward 0.7, spectral 3.5: 129 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
+grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22: 151 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
 refraction took 31 s). None is marked slow: the module fits in the default run.
 """
 from __future__ import annotations
@@ -61,6 +61,12 @@ CASES = {
                         r"\| case \| data \| options \| time \| iterations \| deviatoric error \|.*",
                         r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*"],
                        ["results/accuracy_suite_quick.csv", "results/accuracy_suite_quick.png"]),
+    "bands": (["--levels", "300", "--minutes", "0.02", "--res", "8", "--data", "{tmp}/data", "--results",
+               "{tmp}/results"],
+              [r"load 300, one band: [\d.]+% \(\d+ iterations in [\d.]+ s; one band aliased in \d+% of the pixels\)",
+               r"load 300, RGB camera: [\d.]+% .*",
+               r"\| load 300 \| [\d.]+% \| [\d.]+% \| [\d.]+% \|"],
+              ["results/bands.csv", "results/bands.png"]),
     "dataset": (["--baseline", "{root}", "--rotations", "2", "--res", "16"],
                 [r"scene +version +total s +render ms +write ms +peak MiB",
                  r"disk +this checkout +[\d.]+ +[\d.]+ +[\d.]+ +\d+",

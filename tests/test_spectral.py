@@ -70,8 +70,8 @@ def test_a_white_light_render_takes_one_march_per_sixteen_wavelengths(monkeypatc
 
     def one_at_a_time(wavelengths):
         result = real(loaded, view=View(phase_scale=phase_scale(loaded, 1.0, wavelengths[0])))
-        return [result.main], result.metadata
-    reference = rendering.in_white_light(one_at_a_time, light)
+        return [{"Y": result.main}], result
+    reference = rendering.in_white_light(rendering.WavelengthRenders(one_at_a_time), light)
     for channel in ("R", "G", "B", "Y", "I.380", "I.600", "I.780"):
         np.testing.assert_allclose(spectral.channels[channel], reference.channels[channel], atol=5e-4)
 

@@ -1,4 +1,4 @@
-"""The camera model of a dataset: read noise, shot noise, quantisation, the polarisation mosaic.
+"""The camera model of a dataset: read noise, shot noise, quantisation, the polarisation (and colour) mosaic.
 
 Intensities are normalised (1 = free space between parallel polarisers). A
 seeded generator per rotation makes every image reproducible on its own, so a
@@ -12,8 +12,12 @@ from typing import Optional
 import numpy as np
 from scipy.ndimage import convolve
 
+from ..physics.bands import BandSet
+
 # The IMX250MZR's 2x2 micro-polariser cell (analyser angles, degrees): 90 45 over 135 0.
 MOSAIC = ((90, 45), (135, 0))
+# The IMX250MYR's colour filters: one colour over each 2x2 polariser cell, the cells in a Bayer pattern.
+BAYER = (("red", "green"), ("green", "blue"))
 
 
 @dataclass(frozen=True)
@@ -42,15 +46,19 @@ class CameraModel:
     def to_dict(self) -> dict:
         return asdict(self)
 
-    def capture(self, images: dict, rotation_index: int) -> dict:
-        """Noisy captures of ``{"pol.b1.b2.a2": (H, W)}`` ideal normalised intensities."""
+    def capture(self, images: dict, rotation_index: int, bands: BandSet | None = None) -> dict:
+        """Noisy captures of ``{"pol.b1.b2.a2": (H, W)}`` ideal normalised intensities (of each band's:
+        ``<band>.pol.b1.b2.a2``, for ``bands``; through the mosaic, each under its colour filter,
+        :func:`bayer_sites`)."""
         if self.is_ideal:
             return {name: np.asarray(image, dtype=np.float32) for name, image in images.items()}
         rng = np.random.default_rng([self.seed, rotation_index])
         names = sorted(images)
         stack = np.stack([np.asarray(images[n], dtype=np.float64) for n in names])
+        sites = None
         if self.mosaic:
-            stack = _through_mosaic(names, stack)
+            sites = {} if bands is None else bayer_sites(bands)
+            stack = _through_mosaic(names, stack, sites)
         if self.full_well is not None:
             stack = rng.poisson(np.clip(stack, 0.0, None) * self.full_well) / self.full_well
         stack = stack + rng.normal(0.0, self.read_noise, stack.shape) if self.read_noise else stack
@@ -58,7 +66,7 @@ class CameraModel:
             levels = 2 ** self.bits - 1
             stack = np.round(np.clip(stack / self.saturation, 0.0, 1.0) * levels) / levels * self.saturation
         if self.mosaic:
-            stack = _demosaic(names, stack)
+            stack = _demosaic(names, stack, sites)
         return {name: image.astype(np.float32) for name, image in zip(names, stack)}
 
 
@@ -66,33 +74,64 @@ def analyser_of(name: str) -> int:
     return int(name.split(".")[-1])
 
 
-def mosaic_mask(analyser: int, shape: tuple[int, int]) -> np.ndarray:
-    """Where the micro-polariser ``analyser`` (degrees) sits in an image of ``shape``."""
+def bayer_sites(bands: BandSet) -> dict[str, str]:
+    """Which colour filter of :data:`BAYER` each of three bands is seen through: by their centre wavelengths,
+    the longest red, the shortest blue."""
+    if len(bands) != 3:
+        raise ValueError(f"a colour mosaic has red, green and blue filters; {len(bands)} band(s) cannot sit under "
+                         "them: simulate three bands (--bands rgb, or three wavelengths), or leave out --mosaic")
+    shortest_first = [bands.names[i] for i in np.argsort(bands.weights @ bands.wavelengths)]
+    return dict(zip(shortest_first, ("blue", "green", "red")))
+
+
+def mosaic_mask(analyser: int, shape: tuple[int, int], colour: str | None = None) -> np.ndarray:
+    """Where the micro-polariser ``analyser`` (degrees) sits in an image of ``shape``; under the ``colour``
+    filter only, for a colour sensor (:data:`BAYER`)."""
     mask = np.zeros(shape, dtype=bool)
     for row, cells in enumerate(MOSAIC):
         for column, angle in enumerate(cells):
             if angle == analyser:
                 mask[row::2, column::2] = True
+    if colour is not None:
+        under = np.zeros(shape, dtype=bool)
+        for row, cells in enumerate(BAYER):
+            for column, name in enumerate(cells):
+                if name == colour:
+                    for r in range(2):
+                        under[2 * row + r::4, 2 * column:: 4] = True
+                        under[2 * row + r::4, 2 * column + 1::4] = True
+        mask &= under
     return mask
 
 
-def _through_mosaic(names, stack):
+def _site(name, sites):
+    """The colour filter a channel ``<band>.pol...`` is seen through (None: a monochrome sensor)."""
+    return sites.get(name[:name.index(".pol.")]) if sites and ".pol." in name else None
+
+
+def _through_mosaic(names, stack, sites):
     """Each analyser image keeps only its own micro-polariser pixels (the sensor's raw frame)."""
-    return np.stack([np.where(mosaic_mask(analyser_of(n), image.shape), image, 0.0) for n, image in zip(names, stack)])
+    return np.stack([np.where(mosaic_mask(analyser_of(n), image.shape, _site(n, sites)), image, 0.0)
+                     for n, image in zip(names, stack)])
 
 
-# Bilinear demosaicking of a channel sampled on every other row and column.
-_BILINEAR = np.array([[0.25, 0.5, 0.25], [0.5, 1.0, 0.5], [0.25, 0.5, 0.25]])
+def _tent(radius: int) -> np.ndarray:
+    """The separable tent ``(1 - |d| / radius)`` over ``|d| < radius``: bilinear interpolation, by normalised
+    convolution, of samples ``radius`` pixels apart."""
+    line = 1.0 - np.abs(np.arange(1 - radius, radius)) / radius
+    return np.outer(line, line)
 
 
-def _interpolated(raw, analyser):
-    """Full-resolution image of one micro-polariser from a raw frame (bilinear over its own pixels)."""
-    mask = mosaic_mask(analyser, raw.shape).astype(np.float64)
-    return convolve(raw * mask, _BILINEAR, mode="mirror") / convolve(mask, _BILINEAR, mode="mirror")
+def _interpolated(raw, analyser, colour=None):
+    """Full-resolution image of one micro-polariser (under one colour filter) from a raw frame: bilinear over
+    its own pixels, every 2nd (every 4th under a colour filter) along each axis."""
+    mask = mosaic_mask(analyser, raw.shape, colour).astype(np.float64)
+    kernel = _tent(2 if colour is None else 4)
+    return convolve(raw * mask, kernel, mode="mirror") / convolve(mask, kernel, mode="mirror")
 
 
-def _demosaic(names, stack):
-    return np.stack([_interpolated(image, analyser_of(name)) for name, image in zip(names, stack)])
+def _demosaic(names, stack, sites):
+    return np.stack([_interpolated(image, analyser_of(name), _site(name, sites)) for name, image in zip(names, stack)])
 
 
 def demosaic(raw: np.ndarray) -> dict[int, np.ndarray]:

@@ -3,7 +3,10 @@
 The same format holds simulations and real captures (``source.kind``). Each
 rotation's EXR has the 16 ``pol.<b1>.<b2>.<a2>`` channels (normalised
 intensities, half float, ZIP), ``mask.dolp`` (the object mask from the
-measurements) and, for simulations, ``mask.occupancy`` (exact).
+measurements) and, for simulations, ``mask.occupancy`` (exact). A dataset of
+several colour bands (``bands`` in ``dataset.json``: a colour camera's, or
+narrow bands; ``physics/bands.py``) has the 16 channels of each band, named
+``<band>.pol.<b1>.<b2>.<a2>``.
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import numpy as np
 from ..io.atomic import atomic_path
 from ..io.exr import ExrFileError, read_channels, read_metadata
 from ..physics import MEASUREMENTS
+from ..physics.bands import BandError, BandSet, band_set_from_dict
 
 FORMAT = "mi_nest.dataset"
 # Version 2: simulated with the physical handedness of docs/physics.md (QWP angles are fast axes).
@@ -32,11 +36,35 @@ MASK_CHANNELS = ("mask.dolp", "mask.occupancy")
 UNITS = {"length": "mm", "stress": "MPa", "wavelength": "nm", "angle": "degree",
          "stress_optic_coefficient": "Brewster (1e-12 / Pa)", "intensity": "normalised (free space = 1)"}
 # What a rerun must agree on to resume a dataset instead of starting a new one.
-IDENTITY_KEYS = ("source", "resolution", "spp", "rotations", "camera_model", "polariscope")
+IDENTITY_KEYS = ("source", "resolution", "spp", "rotations", "camera_model", "polariscope", "bands")
 
 
 class DatasetError(ValueError):
     """A dataset directory is missing, corrupt, incomplete or inconsistent."""
+
+
+def measurement_channels(bands: BandSet | None) -> tuple[str, ...]:
+    """The measurement channels of a dataset of ``bands`` (None: one band, the 16 as they are named)."""
+    if bands is None:
+        return CHANNELS
+    return tuple(f"{band}.{name}" for band in bands.names for name in CHANNELS)
+
+
+def measurement_of(channel: str) -> str:
+    """The measurement (``pol.<b1>.<b2>.<a2>``) a channel holds, whichever band."""
+    return channel[channel.index("pol."):]
+
+
+def dataset_bands(index: dict) -> BandSet | None:
+    """The bands a dataset was measured in (None: one wavelength, ``wavelength``)."""
+    record = index.get("bands")
+    if record is None:
+        return None
+    try:
+        return band_set_from_dict(record)
+    except BandError as error:
+        raise DatasetError(f"{INDEX}: {error}; put the dataset's own dataset.json back, or simulate it again") \
+            from None
 
 
 def rotation_file(index: int) -> str:
@@ -80,15 +108,17 @@ def read_index(directory: str | Path) -> dict:
     if missing:
         raise DatasetError(f"{path}: corrupt: missing {missing}")
     channels = index["channels"]
-    if not isinstance(channels, list) or sorted(map(str, channels)) != sorted(CHANNELS):
+    expected = measurement_channels(dataset_bands(index))
+    if not isinstance(channels, list) or sorted(map(str, channels)) != sorted(expected):
         listed = Counter(map(str, channels)) if isinstance(channels, list) else Counter()
-        absent = [name for name in CHANNELS if name not in listed]
-        foreign = [name for name in listed if name not in CHANNELS]
+        absent = [name for name in expected if name not in listed]
+        foreign = [name for name in listed if name not in expected]
         repeated = [name for name, count in listed.items() if count > 1]
         wrong = [text for names, text in ((absent, f"without {absent}"), (foreign, f"{foreign} besides"),
                                           (repeated, f"{repeated} more than once")) if names]
-        raise DatasetError(f"{path}: corrupt: 'channels' must list each of the {len(CHANNELS)} measurements "
-                           f"(pol.<b1>.<b2>.<a2>) once; it lists {sum(listed.values())}, {', '.join(wrong)}: put "
+        what = "pol.<b1>.<b2>.<a2>" if len(expected) == len(CHANNELS) else "<band>.pol.<b1>.<b2>.<a2>"
+        raise DatasetError(f"{path}: corrupt: 'channels' must list each of the {len(expected)} measurements "
+                           f"({what}) once; it lists {sum(listed.values())}, {', '.join(wrong)}: put "
                            "the dataset's own dataset.json back, or simulate or acquire it again")
     for rotation in index["rotations"]:
         if not {"index", "azimuth", "elevation", "file", "split", "to_world"} <= set(rotation):
@@ -139,6 +169,8 @@ def settings_fingerprint(index: dict) -> str:
     """A short hash of what every rotation file of a dataset shares: camera, sampling, polariscope, source."""
     source = index.get("source") or {}
     shared = {key: index.get(key) for key in ("resolution", "spp", "camera_model", "polariscope")}
+    if index.get("bands") is not None:      # one-band datasets keep the fingerprint they had before bands
+        shared["bands"] = index["bands"]
     shared["source"] = {key: source.get(key) for key in ("kind", "scene", "defines")}
     if "scene_content" in source:       # datasets simulated before it was recorded keep their fingerprint
         shared["source"]["scene_content"] = source["scene_content"]

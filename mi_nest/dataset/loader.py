@@ -67,8 +67,8 @@ class Dataset:
     memory free now, at least 1 GiB). ``rotations`` lists each rotation's record (angles, camera ``to_world``,
     ``split``: ``train`` or ``test``); ``index`` is the whole ``dataset.json`` (its ``source`` names the scene
     and defines a simulation was rendered from); ``resolution`` is ``(width, height)``; ``channels`` the 16
-    measurements' names. A dataset that an interrupted run left incomplete is refused unless
-    ``allow_incomplete``.
+    measurements' names (of each band, for a dataset of several: ``bands``). A dataset that an interrupted run
+    left incomplete is refused unless ``allow_incomplete``.
 
     >>> dataset = mi_nest.Dataset("data/disk")
     >>> images = dataset.view(0)                    # {channel: (H, W) image} of the first rotation
@@ -87,6 +87,7 @@ class Dataset:
             raise fmt.DatasetError(f"{self.directory}: {len(missing)} rotation EXR file(s) missing: {missing[:5]}")
         self.resolution = tuple(self.index["resolution"])        # (width, height)
         self.channels = tuple(self.index["channels"])
+        self.bands = fmt.dataset_bands(self.index)        # None: one wavelength
         self._cache = OrderedDict()
         self._splits = {}
         self._cache_bytes = default_cache_bytes() if cache_bytes is None else int(cache_bytes)
@@ -125,11 +126,17 @@ class Dataset:
         be turned) and the two retardances.
         """
         calibration = self.index.get("calibration")
-        scopes = [MEASUREMENTS[name] for name in self.channels]
+        scopes = [MEASUREMENTS[fmt.measurement_of(name)] for name in self.channels]
         if not calibration:
             return tuple(scopes)
         return tuple(_calibrated(scope, calibration["analyzer_offset"], calibration["qwp1_retardance"],
                                  calibration["qwp2_retardance"]) for scope in scopes)
+
+    def channel_bands(self) -> tuple[int, ...] | None:
+        """Per channel, in ``channels`` order, the index of its band in ``bands`` (None: one wavelength)."""
+        if self.bands is None:
+            return None
+        return tuple(self.bands.names.index(name[:name.index(".pol.")]) for name in self.channels)
 
     def to_world(self, position: int) -> np.ndarray:
         """The 4x4 camera-to-world matrix of rotation ``position`` (the camera turned about the specimen)."""

@@ -27,12 +27,13 @@ from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from ..render import available_memory, render, render_plan
+from ..physics.bands import BandSet
+from ..render import available_memory, render, render_bands, render_plan
 from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
                      scene_file, scene_inputs, scene_sensor, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
 from . import format as fmt
-from .camera import CameraModel
+from .camera import CameraModel, bayer_sites
 from .masks import agreement, dolp_mask
 from .schedule import RotationSchedule, camera_to_world
 
@@ -45,12 +46,15 @@ class SimulationSettings(RotationSchedule):
     camera: CameraModel = field(default_factory=CameraModel)
     dolp_threshold: float = 0.95
     half: bool = True                # half-float EXR channels
+    bands: BandSet | None = None     # a colour camera's bands, or narrow ones (physics/bands.py); None: one
 
     def __post_init__(self):
         # Checked before anything is written: 0 must not stand for the scene's own sample count.
         for name in ("azimuths", "elevations", "res", "spp"):
             if getattr(self, name) is not None:
                 whole_number(name, getattr(self, name))
+        if self.bands is not None and self.camera.mosaic:
+            bayer_sites(self.bands)     # three bands under the colour filters, or refused before anything starts
 
 
 @dataclass
@@ -90,7 +94,8 @@ def _require_room(settings, resolution, output):
                                "simulate fewer rotations (--azimuth, --elevation)")
     width, height = resolution
     channel_bytes = 2 if settings.half else 4
-    per_rotation = width * height * (len(fmt.CHANNELS) + len(fmt.MASK_CHANNELS)) * channel_bytes
+    per_rotation = width * height * (len(fmt.measurement_channels(settings.bands)) + len(fmt.MASK_CHANNELS)) \
+        * channel_bytes
     written = sum(file.stat().st_size for file in (output / "rotations").glob("*.exr"))
     free = shutil.disk_usage(output).free
     if rotations * per_rotation - written > free:
@@ -197,7 +202,8 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
         "stress_optic_coefficient": sorted({m.stress_optic_coefficient for m in media}),
         "polariscope": {"polarizer": float(light.polarizer), "input_qwp": list(INPUT_QWP_SETTINGS),
                         "output_qwp": list(OUTPUT_QWP_SETTINGS), "analyzer": list(ANALYZERS)},
-        "channels": list(fmt.CHANNELS),
+        "channels": list(fmt.measurement_channels(settings.bands)),
+        "bands": None if settings.bands is None else settings.bands.to_dict(),
         "mask_channels": list(fmt.MASK_CHANNELS),
         "camera_model": settings.camera.to_dict(),
         "dolp_threshold": settings.dolp_threshold,
@@ -269,7 +275,8 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
                     continue
                 rendering = time.perf_counter()
                 pose(scene, entry["to_world"])
-                result = render(scene, spp=settings.spp)
+                result = (render(scene, spp=settings.spp) if settings.bands is None
+                          else render_bands(scene, settings.bands, spp=settings.spp))
                 render_seconds += time.perf_counter() - rendering
                 if not rendered:    # the index before the first rotation file: a render refused writes nothing
                     fmt.write_index(output, index)
@@ -338,9 +345,13 @@ def json_round_trip(value: Any) -> Any:
 
 
 def _write_rotation(path, rendered, entry, index, settings, aliasing=None):
-    measured = settings.camera.capture({name: rendered[name] for name in fmt.CHANNELS}, entry["index"])
+    measured = settings.camera.capture({name: rendered[name] for name in index["channels"]}, entry["index"],
+                                       settings.bands)
     channels = dict(measured)
-    channels["mask.dolp"] = dolp_mask(measured, settings.dolp_threshold).astype(np.float32)
+    # Free space shows a DoLP of 1 in every band: the specimen is where any band's drops.
+    bands = [""] if settings.bands is None else [f"{band}." for band in settings.bands.names]
+    channels["mask.dolp"] = np.any([dolp_mask({name: measured[band + name] for name in fmt.CHANNELS},
+                                              settings.dolp_threshold) for band in bands], axis=0).astype(np.float32)
     channels["mask.occupancy"] = (rendered["path.length"] > 0).astype(np.float32)
     metadata = fmt.rotation_header(entry, index)
     if aliasing is not None:

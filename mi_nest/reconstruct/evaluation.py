@@ -6,21 +6,20 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..fields.base import StressField
-from ..physics import MEASUREMENTS
 from ..tracer import Tracer
 from . import metrics
-from .losses import intensities
+from .channels import ChannelModel
 from .rays import ViewRays, stratified
 
 
 def predict_view(scene: mi.Scene, view_rays: ViewRays, tracer: Tracer, position: int,
                  stress_field: StressField) -> np.ndarray:
-    """``(H * W, 16)`` intensities of rotation ``position`` (pixel centres) with ``stress_field`` in the
-    specimens, through the polariscopes the dataset was measured with."""
+    """``(H * W, channels)`` intensities of rotation ``position`` (pixel centres) with ``stress_field`` in the
+    specimens, as the dataset's channels measured them (its polariscopes, and bands)."""
     rays, right = view_rays.view(position)
-    traced = tracer.trace_rays(scene, rays, right, field=stress_field)
-    scopes = view_rays.dataset.polariscopes()
-    return np.stack([np.array(c) for c in intensities(traced.jones(), scopes)], axis=-1)
+    channels = ChannelModel.of(view_rays.dataset, scene)
+    traced = tracer.trace_rays(scene, rays, right, field=stress_field, view=channels.view)
+    return np.stack([np.array(c) for c in channels.intensities(traced.jones())], axis=-1)
 
 
 def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray | None:
@@ -31,21 +30,21 @@ def view_mask(dataset: Dataset, position: int, mask: str | None) -> np.ndarray |
 
 
 def view_psnr(predicted: np.ndarray, dataset: Dataset, position: int, mask: str | None) -> float:
-    """The PSNR (dB, peak 1) of ``(H * W, 16)`` predicted intensities against rotation ``position``'s
+    """The PSNR (dB, peak 1) of ``(H * W, channels)`` predicted intensities against rotation ``position``'s
     measurements over its ``mask`` pixels: the one definition that ``reconstruct`` and ``compare`` report."""
-    measured = dataset.measurements(position).reshape(-1, len(MEASUREMENTS))
+    measured = dataset.measurements(position).reshape(-1, len(dataset.channels))
     return metrics.psnr(predicted, measured, view_mask(dataset, position, mask))
 
 
 def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, tracer: Tracer,
                  split: str = "train",
                  mask: str | None = "mask.dolp") -> float:
-    """Mean L1 error of the 16 intensities over every ``mask`` pixel of the ``split`` rotations."""
+    """Mean L1 error of the intensities (every channel) over every ``mask`` pixel of the ``split`` rotations."""
     view_rays = ViewRays(scene, dataset)
     total = count = 0.0
     for position in dataset.split(split):
         error = np.abs(predict_view(scene, view_rays, tracer, position, stress_field)
-                       - dataset.measurements(position).reshape(-1, len(MEASUREMENTS)))
+                       - dataset.measurements(position).reshape(-1, len(dataset.channels)))
         inside = view_mask(dataset, position, mask)
         if inside is not None:
             error = error[inside]
@@ -55,17 +54,17 @@ def dataset_loss(scene: mi.Scene, dataset: Dataset, stress_field: StressField, t
 
 
 class SampledViewLoss:
-    """The mean L1 error of the 16 intensities over the ``mask`` pixels of a fixed sample of ``views`` of the
-    ``split`` rotations, each pixel the mean of ``samples`` stratified rays across it, the same rays for every
-    field scored (as the camera integrates, and the finest stage fits: at pixel centres the aliased pixels miss
-    every field alike, and hide what tells fields apart)."""
+    """The mean L1 error of the intensities (every channel) over the ``mask`` pixels of a fixed sample of
+    ``views`` of the ``split`` rotations, each pixel the mean of ``samples`` stratified rays across it, the same
+    rays for every field scored (as the camera integrates, and the finest stage fits: at pixel centres the
+    aliased pixels miss every field alike, and hide what tells fields apart)."""
 
     def __init__(self, scene: mi.Scene, dataset: Dataset, tracer: Tracer, mask: str | None, split: str,
                  views: int, samples: int):
         positions = dataset.split(split)
         self.positions = positions[::max(1, len(positions) // views)][:views]
         self.scene, self.tracer, self.samples = scene, tracer, samples
-        self.scopes = dataset.polariscopes()
+        self.channels = ChannelModel.of(dataset, scene)
         view_rays = ViewRays(scene, dataset)
         rng = np.random.default_rng(0)
         self.rays, self.measured = [], []
@@ -77,13 +76,13 @@ class SampledViewLoss:
             self.rays.append(view_rays.rays(*(np.repeat(a, samples) for a in
                                               (np.full(len(pixels), position), rows, columns)),
                                             jitter=stratified(len(pixels), samples, rng)))
-            self.measured.append(dataset.measurements(position).reshape(-1, len(MEASUREMENTS))[pixels])
+            self.measured.append(dataset.measurements(position).reshape(-1, len(dataset.channels))[pixels])
 
     def __call__(self, stress_field: StressField) -> float:
         total = count = 0.0
         for (rays, right), measured in zip(self.rays, self.measured):
-            traced = self.tracer.trace_rays(self.scene, rays, right, field=stress_field)
-            predicted = np.stack([np.array(c) for c in intensities(traced.jones(), self.scopes)], axis=-1)
+            traced = self.tracer.trace_rays(self.scene, rays, right, field=stress_field, view=self.channels.view)
+            predicted = np.stack([np.array(c) for c in self.channels.intensities(traced.jones())], axis=-1)
             error = np.abs(predicted.reshape(len(measured), self.samples, -1).mean(axis=1) - measured)
             total += float(error.sum())
             count += error.size
@@ -111,7 +110,7 @@ def evaluate(scene: mi.Scene, dataset: Dataset, stress_field: StressField, truth
 
 def heldout_predictions(scene: mi.Scene, dataset: Dataset, stress_field: StressField, tracer: Tracer,
                         views: int) -> dict[int, np.ndarray]:
-    """``{position: (H * W, 16) intensities}`` of up to ``views`` held-out rotations (:func:`predict_view`)."""
+    """``{position: (H * W, channels) intensities}`` of up to ``views`` held-out rotations (:func:`predict_view`)."""
     view_rays = ViewRays(scene, dataset)
     return {position: predict_view(scene, view_rays, tracer, position, stress_field)
             for position in dataset.split("test")[:views]}

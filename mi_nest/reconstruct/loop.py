@@ -28,6 +28,7 @@ from ..scene import scene_origin, specimen_shapes
 from ..tracer import Tracer
 from . import equilibrium, metrics
 from .free_surface import FreeSurfacePrior
+from .channels import ChannelModel
 from .checkpoints import CHECKPOINT, Checkpoint, Reconstruction, adam_moments, restore_adam_moments
 from .config import TWO_STEP, OptimizeConfig
 from .kinds import KINDS
@@ -97,7 +98,7 @@ class Run:
         self.retardance = (RetardanceTargets(dataset, config.optimiser.mask)
                            if config.model.method == TWO_STEP or config.schedule.warm_start else None)
         self.error_probe = None
-        self.polariscopes = dataset.polariscopes()
+        self.channels = ChannelModel.of(dataset, scene)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid
@@ -283,7 +284,8 @@ class Run:
         seed = optimiser.seed * 1_000_003 + self.iteration
         # The step follows the grid's spacing as it stands (coarse-to-fine).
         step_size = forward_step(self.config, self.field)
-        traced = tracer.trace_rays(self.scene, rays, right, seed=seed, field=self.field, step_size=step_size)
+        traced = tracer.trace_rays(self.scene, rays, right, seed=seed, field=self.field, step_size=step_size,
+                                   view=self.channels.view)
         length = traced.length
         admitted = None
         limit = self.path_limit(length, samples)
@@ -296,7 +298,7 @@ class Run:
             if fitting_retardance:
                 loss = generator_loss(leaf, targets, samples)
             else:
-                loss = l1_loss(traced.jones(leaf), targets, samples, admitted, self.polariscopes)
+                loss = l1_loss(traced.jones(leaf), targets, samples, admitted, self.channels)
             total = loss
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
@@ -319,7 +321,7 @@ class Run:
             dr.backward(total)
             state_grad = dr.grad(leaf)
         tracer.backpropagate_rays(self.scene, rays, right, traced, state_grad, seed=seed, field=self.field,
-                                  step_size=step_size)
+                                  step_size=step_size, view=self.channels.view)
         value = float(total[0])
         if regulariser.free_surface:
             # Its own backward, after the rays': taken in one backward with the rays' loss, the texture lookups'

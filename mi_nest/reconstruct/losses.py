@@ -11,6 +11,7 @@ from ..physics import MEASUREMENTS, Polariscope
 from ..physics.jones import Biquaternion
 from ..physics.su2 import Quaternion
 from ..arrays import device_array
+from .channels import NOMINAL, ChannelModel
 
 
 def intensities(q: Quaternion | Biquaternion,
@@ -20,9 +21,10 @@ def intensities(q: Quaternion | Biquaternion,
     return [scope.intensity(q) for scope in polariscopes]
 
 
-def l1_loss(q: Quaternion, targets: np.ndarray, pixel_samples: int = 1, weights: mi.Float | None = None,
-            polariscopes: Sequence[Polariscope] = tuple(MEASUREMENTS.values())) -> mi.Float:
-    """Mean absolute error of the intensities of ``polariscopes`` against ``targets`` (N, 16).
+def l1_loss(q: Quaternion | list, targets: np.ndarray, pixel_samples: int = 1, weights: mi.Float | None = None,
+            channels: ChannelModel = NOMINAL) -> mi.Float:
+    """Mean absolute error of the intensities of ``channels`` (a dataset's: ``ChannelModel.of``; default the
+    nominal 16) against ``targets`` (N, channels), from the traced rays' Jones matrices ``q``.
 
     ``q`` holds ``pixel_samples`` consecutive rays per target pixel; their
     intensities are averaged first, as the camera integrates over its pixels.
@@ -33,7 +35,7 @@ def l1_loss(q: Quaternion, targets: np.ndarray, pixel_samples: int = 1, weights:
     flat = device_array(mi.Float, targets.ravel())
     pixel = dr.arange(mi.UInt32, len(targets)) * targets.shape[1]
     error = 0.0
-    for channel, predicted in enumerate(intensities(q, polariscopes)):
+    for channel, predicted in enumerate(channels.intensities(q)):
         if pixel_samples > 1:
             predicted = dr.block_sum(predicted, pixel_samples) / pixel_samples
         error = error + dr.abs(predicted - dr.gather(mi.Float, flat, pixel + channel))

@@ -23,10 +23,11 @@ from ..fields.base import StressField
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
 from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specimen_media, specimen_shapes
+from ..tracer import Tracer, TracerConfig
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices
-from .config import OptimizeConfig
+from .config import TWO_STEP, OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
@@ -70,6 +71,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     shapes = specimen_shapes(scene)
     media = specimen_media(scene)
     _check_material(media, dataset)
+    _check_bands(dataset, config, scene)
     _warn_if_aliased(dataset)
     dataset.check_measurements(config.optimiser.mask)
     if truth == "scene":
@@ -160,6 +162,20 @@ def _warn_if_aliased(dataset):
         "several fringes and no longer tell the phase: expect the largest errors there (stress concentrations) "
         "and wrapped local minima; a finer camera, or a smaller load or stress-optic coefficient, resolves them",
         RuntimeWarning, stacklevel=3)
+
+
+def _check_bands(dataset: Dataset, config: OptimizeConfig, scene: mi.Scene) -> None:
+    """A dataset of several bands is fitted by its intensities in one spectral march: refuse what cannot."""
+    if dataset.bands is None:
+        return
+    if config.model.method == TWO_STEP or config.schedule.warm_start:
+        raise ValueError(f"the Two-step unwraps one wavelength's measurements, and {dataset.directory} holds "
+                         f"{len(dataset.bands)} bands ({dataset.bands.describe()}): fit them by their intensities "
+                         "(leave out method two-step and the warm start)")
+    if not Tracer(TracerConfig(method=config.model.method)).marches_spectra(scene):
+        raise ValueError("a dataset of several bands is fitted in one march per ray for all wavelengths, along "
+                         "straight rays; this scene's surfaces refract (docs/refraction.md): reconstruct it from "
+                         "one band, or index-match the scene")
 
 
 def _check_material(media, dataset):

@@ -39,7 +39,6 @@ from ..dataset import Dataset
 from ..fields.base import sample
 from ..io.atomic import atomic_path
 from ..io.grid import grid_nodes
-from ..physics import MEASUREMENTS
 from . import equilibrium
 from .evaluation import view_mask
 from ..physics.tensors import deviatoric_part, tensor_norm
@@ -172,7 +171,7 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, predicti
     weight_sum = np.zeros(splat.nodes)
     view_residuals, views = [], []
     for position, predicted in predictions.items():
-        error = np.abs(predicted - dataset.measurements(position).reshape(-1, len(MEASUREMENTS))).mean(axis=1)
+        error = np.abs(predicted - dataset.measurements(position).reshape(-1, len(dataset.channels))).mean(axis=1)
         selected = _pixels(dataset, position, mask)
         rays, _ = view_rays.view(position)
         total, weight = splat.values(rays, selected, error)

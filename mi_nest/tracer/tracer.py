@@ -62,16 +62,18 @@ class View:
     """What a view changes without loading the scene again: a polariscope instead of the scene's (None: the
     scene's), a factor on every phase (a load scale, or a wavelength's ratio) and, for a spectral march
     (``spectral.py``), its wavelengths as ``(channel name, factor on phase_scale)`` pairs: each adds its main
-    intensity as that channel (none: one wavelength)."""
+    intensity as that channel and, with ``lane_measurements``, its 16 measurements as ``<name>.<measurement>``
+    (no lanes: one wavelength)."""
     polariscope: Polariscope | None = None
     phase_scale: float = 1.0
     lanes: tuple[tuple[str, float], ...] = ()
+    lane_measurements: bool = False
 
     def __post_init__(self):
         if not math.isfinite(self.phase_scale):
             raise ValueError(f"photoelastic: the phase scale must be a finite number, got {self.phase_scale}")
         names = [name for name, _ in self.lanes]
-        if len(set(names)) != len(names) or set(names) & set(CHANNELS):
+        if len(set(names)) != len(names) or set(self.lane_channels) & set(CHANNELS):
             raise ValueError(f"photoelastic: a spectral view's channel names must be distinct and not the "
                              f"integrator's own channels, got {names}")
         bad = [factor for _, factor in self.lanes if not (math.isfinite(factor) and factor > 0)]
@@ -79,8 +81,11 @@ class View:
             raise ValueError(f"photoelastic: a spectral view's phase factors must be positive numbers, got {bad}")
 
     @property
-    def lane_names(self) -> tuple[str, ...]:
-        return tuple(name for name, _ in self.lanes)
+    def lane_channels(self) -> tuple[str, ...]:
+        """The channels the lanes add to a render, in order."""
+        measurements = tuple(MEASUREMENTS) if self.lane_measurements else ()
+        return tuple(channel for name, _ in self.lanes
+                     for channel in (name, *(f"{name}.{m}" for m in measurements)))
 
 
 SCENE_VIEW = View()
@@ -104,10 +109,11 @@ class OpaquePolariscope:
 @dataclass
 class TracePlan:
     """What the calls inside one render or ray batch share: the scene set-up, the method decided for it
-    (spectral where the view has lanes) and the lanes' channel names."""
+    (spectral where the view has lanes) and the channels the lanes add (``View.lane_channels``)."""
     setup: SceneSetup
     decision: Decision
     lanes: tuple[str, ...] = ()
+    lane_measurements: bool = False
     norm_error: mi.Float | None = None      # a method that is not unitary: how far |J|^2 drifted
 
 
@@ -174,7 +180,7 @@ class Tracer:
         if view.lanes:
             decision = decision._replace(method=spectral(decision.method, tuple(f for _, f in view.lanes)))
         guards.check_steps_per_ray(setup.specimen_diagonal, decision.step_size)
-        return TracePlan(setup, decision, view.lane_names)
+        return TracePlan(setup, decision, view.lane_channels, view.lane_measurements)
 
     def marches_spectra(self, scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
         """Whether several wavelengths can share one march in ``scene`` (:class:`View` ``lanes``): straight
@@ -367,7 +373,10 @@ class Tracer:
         aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        aovs += [radiance * setup.polariscope.intensity(lane) for lane in lanes]
+        for lane in lanes:
+            aovs.append(radiance * setup.polariscope.intensity(lane))
+            if plan.lane_measurements:
+                aovs += [radiance * scope.intensity(lane) for scope in MEASUREMENTS.values()]
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):

@@ -27,7 +27,8 @@ from ..arguments import whole_number
 from ..arrays import device_array
 from ..physics.colour import Spectrum
 from ..physics.polariscope import Polariscope, polariscope_setting
-from ..render import RenderResult, check_light_and_load, in_white_light, phase_scale, require_memory
+from ..render import (RenderResult, WavelengthRenders, check_light_and_load, in_white_light, phase_scale,
+                      require_memory)
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
 from ..tracer import View
 from ..version import __version__
@@ -243,10 +244,10 @@ def slice_render_white_light(scene: mi.Scene, spec: SliceSpec, field: object | N
         raise SliceError(f"white light holds every wavelength: leave out the wavelength ({spec.wavelength:g} nm)")
     slicer = Slicer(scene)
 
-    def render_at(wavelengths: list[float]) -> tuple[list[np.ndarray], dict]:
+    def render_at(wavelengths: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
         result = slicer.render(replace(spec, wavelength=wavelengths[0]), field)
-        return [result.main], result.metadata
-    return in_white_light(render_at, light, progress)
+        return [{"Y": result.main}], result
+    return in_white_light(WavelengthRenders(render_at), light, progress)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,176 @@
+"""A camera's colour bands: what each of its channels sees of a light, as weights over the wavelengths marched.
+
+A band's intensity is the light's spectrum between the polarisers weighted by
+the band: ``I_band = sum_l w_l I(lambda_l)``, with ``w`` proportional to the
+light's power times the channel's sensitivity times the width each sample
+stands for, normalised to sum to 1 (free space between parallel polarisers
+stays 1 in every band). A :class:`BandSet` holds several bands over one list
+of wavelengths, the lanes a spectral march advances together
+(``tracer/spectral.py``).
+
+- :func:`narrow_bands`: one wavelength per band (filtered lasers or narrow
+  interference filters);
+- :func:`camera_bands`: an RGB sensor's curves under a light (default the
+  white LED). The curves shipped are colour-science's measurement of a Nikon
+  D5100 (National Physical Laboratory, via ``colour.MSDS_CAMERA_SENSITIVITIES``,
+  BSD-3): a Sony-made Bayer CMOS sensor, the kind a colour polarisation
+  camera's (Sony IMX250MYR) filters are. The IMX250MYR's own published curves
+  can be given as a CSV (:func:`read_bands`).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .colour import Spectrum, white_led
+
+# colour-science's name of the curves :func:`camera_bands` uses by default, and the names its channels get.
+RGB_SENSOR = "Nikon 5100 (NPL)"
+RGB_NAMES = ("red", "green", "blue")
+# nm between the wavelengths a camera's bands are sampled at: a band of 100 nm over fringes a few orders deep
+# varies over 50 nm and more (lambda^2 / retardation), so 10 nm resolves its average.
+BAND_STEP = 10.0
+# A wavelength where no band weighs more than this share of its largest weight is left out of the lanes.
+NEGLIGIBLE_WEIGHT = 1e-3
+
+
+class BandError(ValueError):
+    """Bands that no camera has: empty, unsorted or negative wavelengths, weights that are not a light."""
+
+
+@dataclass(frozen=True, eq=False)
+class BandSet:
+    """Bands ``names`` over ``wavelengths`` (nm, increasing): ``weights[b, l]`` of band ``b`` at wavelength ``l``,
+    each row summing to 1; ``source`` says where the curves come from."""
+    names: tuple[str, ...]
+    wavelengths: np.ndarray
+    weights: np.ndarray
+    source: str = ""
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        wavelengths = np.atleast_1d(np.asarray(self.wavelengths, dtype=np.float64))
+        weights = np.atleast_2d(np.asarray(self.weights, dtype=np.float64))
+        if wavelengths.ndim != 1 or not len(wavelengths):
+            raise BandError("bands need at least one wavelength (nm)")
+        if not (np.all(np.isfinite(wavelengths)) and np.all(wavelengths > 0)):
+            raise BandError(f"band wavelengths must be positive numbers of nm, got {wavelengths.tolist()}")
+        if np.any(np.diff(wavelengths) <= 0):
+            raise BandError(f"band wavelengths must increase, without repeats: got {wavelengths.tolist()}")
+        if not names:
+            raise BandError("a band set needs at least one band")
+        if len(set(names)) != len(names) or any(not n or "." in n or n.isspace() for n in names):
+            raise BandError(f"band names must be distinct, not empty and without dots, got {list(names)}")
+        if weights.shape != (len(names), len(wavelengths)):
+            raise BandError(f"{len(names)} band(s) over {len(wavelengths)} wavelength(s) need weights of shape "
+                            f"({len(names)}, {len(wavelengths)}), got {weights.shape}")
+        if not (np.all(np.isfinite(weights)) and np.all(weights >= 0)) or np.any(weights.sum(axis=1) <= 0):
+            raise BandError("band weights must be finite, not negative, and not zero everywhere in a band")
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "wavelengths", wavelengths)
+        object.__setattr__(self, "weights", weights / weights.sum(axis=1, keepdims=True))
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def to_dict(self) -> dict:
+        """What ``dataset.json`` records (:func:`band_set_from_dict` reads it back)."""
+        return {"names": list(self.names), "wavelengths": self.wavelengths.tolist(),
+                "weights": self.weights.tolist(), "source": self.source}
+
+    def combine(self, per_wavelength: np.ndarray) -> np.ndarray:
+        """``(bands, ...)`` band images from ``(wavelengths, ...)`` images, one per wavelength."""
+        per_wavelength = np.asarray(per_wavelength)
+        return np.tensordot(self.weights, per_wavelength, axes=(1, 0))
+
+    def describe(self) -> str:
+        centres = self.weights @ self.wavelengths
+        return ", ".join(f"{name} ({centre:.0f} nm)" for name, centre in zip(self.names, centres))
+
+
+def band_set_from_dict(record: dict) -> BandSet:
+    try:
+        return BandSet(tuple(record["names"]), np.array(record["wavelengths"]), np.array(record["weights"]),
+                       str(record.get("source", "")))
+    except (KeyError, TypeError, ValueError) as error:
+        raise BandError(f"corrupt bands record ({error}): it needs names, wavelengths and weights") from None
+
+
+def narrow_bands(wavelengths) -> BandSet:
+    """One band per wavelength (nm, increasing), each named by its wavelength (``632_8`` for 632.8 nm: channel
+    names keep their dots for the measurement's parts)."""
+    wavelengths = np.atleast_1d(np.asarray(wavelengths, dtype=np.float64))
+    if wavelengths.ndim != 1 or not len(wavelengths):
+        raise BandError("give at least one wavelength (nm) for narrow bands")
+    return BandSet(tuple(f"{w:g}".replace(".", "_") for w in wavelengths), wavelengths, np.eye(len(wavelengths)),
+                   "narrow bands at " + ", ".join(f"{w:g}" for w in wavelengths) + " nm")
+
+
+def camera_bands(light: Spectrum | None = None, curves: tuple[np.ndarray, np.ndarray, tuple[str, ...]] | None = None,
+                 step: float = BAND_STEP, source: str | None = None) -> BandSet:
+    """A camera's bands under ``light`` (default: the white LED every ``step`` nm): ``curves`` is
+    ``(wavelengths, sensitivities (wavelengths, bands), names)`` (default: :data:`RGB_SENSOR`'s red, green and
+    blue), interpolated onto the light's wavelengths (zero outside the curves)."""
+    light = white_led(step=step) if light is None else light
+    if curves is None:
+        import colour
+        measured = colour.MSDS_CAMERA_SENSITIVITIES[RGB_SENSOR]
+        curves = (np.asarray(measured.wavelengths), np.asarray(measured.values), RGB_NAMES)
+        source = source or (f"{RGB_SENSOR} RGB sensitivities (colour-science, National Physical Laboratory) "
+                            f"under {light.name or 'the light'}")
+    wavelengths, sensitivities, names = curves
+    sensitivities = np.asarray(sensitivities, dtype=np.float64).reshape(len(wavelengths), -1)
+    sampled = np.stack([np.interp(light.wavelengths, wavelengths, s, left=0.0, right=0.0)
+                        for s in sensitivities.T])
+    weights = sampled * light.weights()
+    kept = (weights > NEGLIGIBLE_WEIGHT * weights.max(axis=1, keepdims=True)).any(axis=0)
+    if not kept.any():
+        raise BandError("the camera's curves and the light share no wavelength: no band sees any light")
+    return BandSet(tuple(names), light.wavelengths[kept], weights[:, kept], source or "camera curves")
+
+
+def read_bands(path: str | Path, light: Spectrum | None = None, step: float = BAND_STEP) -> BandSet:
+    """A camera's bands from a CSV file: a header ``wavelength,<band>,<band>...`` then one row per wavelength
+    (nm, increasing) with each band's relative sensitivity; seen under ``light`` (default: the white LED)."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as handle:
+            rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
+    except OSError as error:
+        raise BandError(f"cannot read the bands file {path}: {error.strerror or error}") from None
+    if len(rows) < 3 or len(rows[0]) < 2:
+        raise BandError(f"{path}: a bands file needs a header 'wavelength,<band>,...' and at least two rows of "
+                        "numbers")
+    names = tuple(name.strip() for name in rows[0][1:])
+    try:
+        values = np.array([[float(x) for x in row] for row in rows[1:]])
+    except ValueError:
+        raise BandError(f"{path}: every row after the header must be numbers (nm, then each band's "
+                        "sensitivity)") from None
+    if values.shape[1] != len(names) + 1:
+        raise BandError(f"{path}: rows must have {len(names) + 1} numbers, as the header names")
+    wavelengths = values[:, 0]
+    if np.any(np.diff(wavelengths) <= 0) or np.any(wavelengths <= 0):
+        raise BandError(f"{path}: the wavelengths must be positive and increase, without repeats")
+    return camera_bands(light, (wavelengths, values[:, 1:], names), step, f"{path.name} under the light")
+
+
+def parse_bands(text: str) -> BandSet:
+    """``rgb`` (:func:`camera_bands`), a list of wavelengths in nm (``450,532,633``: :func:`narrow_bands`), or a
+    CSV file of a camera's curves (:func:`read_bands`)."""
+    text = text.strip()
+    if text.lower() == "rgb":
+        return camera_bands()
+    if text.lower().endswith(".csv"):
+        return read_bands(text)
+    try:
+        wavelengths = [float(x) for x in text.replace(" ", "").split(",") if x]
+    except ValueError:
+        raise BandError(f"--bands must be 'rgb', wavelengths in nm such as 450,532,633, or a CSV file of a "
+                        f"camera's curves; got '{text}'") from None
+    if not wavelengths:
+        raise BandError("--bands needs at least one wavelength (nm), 'rgb' or a CSV file")
+    return narrow_bands(wavelengths)

@@ -1,0 +1,181 @@
+"""Colour bands (physics/bands.py): band sets and their refusals, renders in bands against closed forms and
+monochromatic renders, datasets of several bands through the colour polarisation mosaic, and the channel model a
+reconstruction fits them with."""
+import json
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mi_nest
+from mi_nest.dataset import Dataset, SimulationSettings, simulate
+from mi_nest.dataset.camera import BAYER, MOSAIC, CameraModel, bayer_sites, mosaic_mask
+from mi_nest.physics import MEASUREMENTS, su2
+from mi_nest.physics.bands import BandError, BandSet, camera_bands, narrow_bands, parse_bands, read_bands
+from mi_nest.physics.colour import plane_polariscope_transmission, white_led
+from mi_nest.physics.polariscope import polariscope_setting
+from mi_nest.reconstruct.channels import ChannelModel
+from mi_nest.render import View, phase_scale, render, render_bands
+from scenes import box, medium, scene
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: narrow_bands([]), "at least one wavelength"),
+    (lambda: narrow_bands([532, 450]), "must increase"),
+    (lambda: narrow_bands([450, 450]), "must increase"),
+    (lambda: narrow_bands([-450]), "positive numbers of nm"),
+    (lambda: BandSet(("r", "r"), [500, 600], np.eye(2)), "distinct"),
+    (lambda: BandSet(("r.g",), [500], [[1.0]]), "without dots"),
+    (lambda: BandSet(("r",), [500, 600], [[1.0]]), "weights of shape"),
+    (lambda: BandSet(("r",), [500, 600], [[0.0, 0.0]]), "not zero everywhere"),
+    (lambda: parse_bands("red"), "--bands must be 'rgb'"),
+    (lambda: parse_bands(","), "at least one wavelength"),
+])
+def test_bands_no_camera_has_are_refused(make, message):
+    with pytest.raises(BandError, match=message):
+        make()
+
+
+def test_a_colour_camera_s_bands_are_normalised_and_ordered_by_colour():
+    bands = camera_bands()
+    assert bands.names == ("red", "green", "blue")
+    np.testing.assert_allclose(bands.weights.sum(axis=1), 1.0, rtol=1e-12)
+    red, green, blue = bands.weights @ bands.wavelengths
+    assert 580 < red < 620 and 520 < green < 555 and 450 < blue < 490
+    assert parse_bands("rgb").describe() == bands.describe()
+    assert parse_bands("450, 532,633").names == ("450", "532", "633")
+
+
+def test_a_camera_s_curves_are_read_from_csv(tmp_path):
+    path = tmp_path / "sensor.csv"
+    path.write_text("# wavelength, then each band's relative sensitivity\nwavelength,short,long\n"
+                    "400,1,0\n500,1,0\n550,0,0\n600,0,1\n700,0,1\n")
+    bands = read_bands(path, white_led(step=10.0))
+    assert bands.names == ("short", "long")
+    short, long = bands.weights @ bands.wavelengths
+    assert 420 < short < 500 < 600 < long < 680
+    assert parse_bands(str(path)).names == ("short", "long")
+    path.write_text("wavelength,a\n500,x\n600,1\n")
+    with pytest.raises(BandError, match="must be numbers"):
+        read_bands(path)
+    with pytest.raises(BandError, match="cannot read the bands file"):
+        read_bands(tmp_path / "missing.csv")
+
+
+def test_a_band_of_a_uniform_slab_is_its_weighted_closed_form():
+    """A slab of retardation R between crossed polarisers at 45 degrees passes sin^2(pi R / lambda) at each
+    wavelength; a broad band sees their weighted sum, a narrow band its own wavelength's."""
+    loaded = scene([box((20, 20, 4), interior=medium(xx=3.0))], res=2, polarizer=45.0, analyzer=-45.0)
+    retardation = 50.0 * 4.0 * 3.0          # Brewster x mm x MPa = nm
+    for bands in (camera_bands(), narrow_bands([450.0, 532.0, 650.0])):
+        result = render_bands(loaded, bands)
+        expected = bands.weights @ plane_polariscope_transmission(np.array(retardation), bands.wavelengths)
+        for name, value in zip(bands.names, expected):
+            np.testing.assert_allclose(result.channels[name], value, atol=2e-5)
+
+
+def test_narrow_bands_are_the_monochromatic_renders_at_their_wavelengths():
+    loaded = mi_nest.load_scene("stacked_disks", res=16, spp=1)
+    bands = narrow_bands([450.0, 532.0, 650.0])
+    result = render_bands(loaded, bands)
+    for name, wavelength in zip(bands.names, bands.wavelengths):
+        alone = render(loaded, view=View(phase_scale=phase_scale(loaded, 1.0, wavelength))).channels
+        for measurement in MEASUREMENTS:
+            np.testing.assert_allclose(result.channels[f"{name}.{measurement}"], alone[measurement], atol=5e-4)
+    assert set(result.channels) >= {"Y", "path.length", "fringe.order"}
+
+
+def test_the_colour_mosaic_puts_each_pixel_under_one_polariser_and_one_filter():
+    shape = (8, 12)
+    cover = np.zeros(shape, dtype=int)
+    for analyser in (a for row in MOSAIC for a in row):
+        for colour in {c for row in BAYER for c in row}:
+            cover += mosaic_mask(analyser, shape, colour)
+    assert (cover == 1).all()
+    assert mosaic_mask(0, shape, "red").sum() == shape[0] * shape[1] // 16
+    assert mosaic_mask(0, shape, "green").sum() == shape[0] * shape[1] // 8
+    assert bayer_sites(narrow_bands([450.0, 532.0, 650.0])) == {"450": "blue", "532": "green", "650": "red"}
+    with pytest.raises(ValueError, match="cannot sit under them"):
+        bayer_sites(narrow_bands([450.0, 650.0]))
+    with pytest.raises(ValueError, match="cannot sit under them"):
+        SimulationSettings(bands=narrow_bands([450.0, 650.0]), camera=CameraModel(mosaic=True))
+
+
+def test_a_colour_mosaic_keeps_a_smooth_image_and_its_own_pixels():
+    """Through the mosaic and back, each band's image keeps the values at its own sites exactly and a linear ramp
+    everywhere inside (bilinear interpolation of every 4th pixel)."""
+    rows, columns = np.mgrid[0:32, 0:32]
+    ramp = (0.01 * rows + 0.02 * columns).astype(np.float64)
+    names = [f"{band}.{m}" for band in ("red", "green", "blue") for m in MEASUREMENTS]
+    captured = CameraModel(mosaic=True).capture({n: ramp for n in names}, 0, camera_bands())
+    for name in names:
+        np.testing.assert_allclose(captured[name][4:-4, 4:-4], ramp[4:-4, 4:-4], atol=1e-5)
+
+
+def test_a_dataset_of_three_bands_is_written_read_and_resumed(tmp_path):
+    settings = SimulationSettings(azimuths=2, elevations=2, res=16, spp=1, bands=camera_bands(),
+                                  camera=CameraModel(read_noise=0.01, mosaic=True))
+    defines = {"load": 100, "contact_width": 4}
+    report = simulate("disk_compression", tmp_path / "data", settings, defines=defines, progress=False)
+    assert report.rendered == 4
+    dataset = Dataset(tmp_path / "data")
+    assert len(dataset.channels) == 48 and dataset.channels[0].startswith("red.pol.")
+    assert dataset.bands.names == ("red", "green", "blue")
+    assert dataset.channel_bands() == tuple(b for b in range(3) for _ in range(16))
+    assert [s.intensity(su2.identity(0.0)) for s in dataset.polariscopes()[:16]] == \
+        [s.intensity(su2.identity(0.0)) for s in MEASUREMENTS.values()]
+    assert dataset.measurements(0).shape == (16, 16, 48)
+    again = simulate("disk_compression", tmp_path / "data", settings, defines=defines, progress=False)
+    assert (again.rendered, again.kept) == (0, 4)
+    index = json.loads((tmp_path / "data" / "dataset.json").read_text())
+    index["channels"] = index["channels"][:16]
+    (tmp_path / "data" / "dataset.json").write_text(json.dumps(index))
+    with pytest.raises(ValueError, match=r"must list each of the 48 measurements \(<band>\.pol"):
+        Dataset(tmp_path / "data")
+
+
+def test_a_band_s_intensity_is_the_weighted_sum_of_its_wavelengths():
+    """ChannelModel's incoherent mix (the weights' square roots on the Jones products) against the plain weighted
+    sum of each wavelength's intensities."""
+    rng = np.random.default_rng(4)
+    bands = camera_bands(step=20.0)
+    lanes = []
+    for _ in bands.wavelengths:
+        q = rng.normal(size=(4, 50))
+        lanes.append(su2.Quaternion(tuple(mi.Float(x) for x in (q / np.linalg.norm(q, axis=0)).astype(np.float32))))
+    scopes = tuple(MEASUREMENTS.values()) * 3
+    model = ChannelModel(scopes, bands, [b for b in range(3) for _ in range(16)], View(lanes=(("a", 1.0),)))
+    for channel, value in enumerate(model.intensities(lanes)):
+        band = channel // 16
+        expected = sum(w * np.array(scopes[channel].intensity(q)) for w, q in zip(bands.weights[band], lanes))
+        np.testing.assert_allclose(np.array(value), expected, atol=2e-6)
+
+
+def test_a_reconstruction_from_bands_runs_and_refuses_what_cannot_fit_them(tmp_path):
+    settings = SimulationSettings(azimuths=3, elevations=2, res=16, spp=1, bands=narrow_bands([450.0, 650.0]))
+    simulate("disk_compression", tmp_path / "data", settings, defines={"load": 100, "contact_width": 4},
+             progress=False)
+    result = mi_nest.optimize("disk_compression", tmp_path / "data", iterations=30, progress=False, resolution=8)
+    assert np.isfinite(result.metrics["deviatoric_error"]) and np.isfinite(result.metrics["test_psnr"])
+    with pytest.raises(ValueError, match="the Two-step unwraps one wavelength"):
+        mi_nest.optimize("disk_compression", tmp_path / "data", iterations=2, progress=False, method="two-step")
+    simulate("disk_compression", tmp_path / "refracting", settings,
+             defines={"load": 100, "contact_width": 4, "ior": 1.5}, progress=False)    # one render per wavelength
+    with pytest.raises(ValueError, match="one march per ray for all wavelengths"):
+        mi_nest.optimize("disk_compression", tmp_path / "refracting", iterations=2, progress=False)
+
+
+def test_the_command_simulates_bands_and_refuses_bad_ones_in_one_line(tmp_path, capsys):
+    from mi_nest.cli import main
+    arguments = ["simulate", "disk_compression", "--azimuth", "2", "--elevation", "1", "--res", "8"]
+    assert main([*arguments, "-o", str(tmp_path / "ok"), "--bands", "450,650"]) == 0
+    assert Dataset(tmp_path / "ok").bands.names == ("450", "650")
+    for bands, message in (("650,450", "must increase"), ("-5", "positive numbers of nm"),
+                           ("blue", "--bands must be 'rgb'"), ("450,650 --mosaic", "cannot sit under them")):
+        capsys.readouterr()
+        extra = ["--mosaic"] if "--mosaic" in bands else []
+        code = main([*arguments, "-o", str(tmp_path / "refused"), "--bands", bands.split()[0], *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "refused" / "dataset.json").exists()
