@@ -128,7 +128,7 @@ def _parser():
                                             "file with its boundary conditions")
     show.add_argument("dataset", help="dataset directory, or a mesh stress file (3D-TSV .TSV/.stress/.TSVcarti/"
                                       ".carti, mesh .npz)")
-    show.add_argument("-c", "--channel", default="pol.45.0.0", help="channel to tile (default: pol.45.0.0)")
+    show.add_argument("-c", "--channel", help="channel to tile (default: pol.45.0.0, or the first band's)")
     show.add_argument("-o", "--output", help="PNG path (default: DATASET/contact_sheet.png; for a file, "
                                              "<name>_preview.png in the current directory)")
 
@@ -459,10 +459,11 @@ def _show(args):
     dataset = Dataset(args.dataset, allow_incomplete=True)
     refuse_overwriting_inputs({"-o": args.output}, [dataset.directory / "dataset.json",
                                                     *(dataset.directory / r["file"] for r in dataset.rotations)])
-    if args.channel not in dataset.channels:
-        raise ValueError(f"unknown channel '{args.channel}'; the dataset has {list(dataset.channels)}")
+    channel = args.channel or next(name for name in dataset.channels if name.endswith("pol.45.0.0"))
+    if channel not in dataset.channels:
+        raise ValueError(f"unknown channel '{channel}'; the dataset has {list(dataset.channels)}")
     output = Path(args.output or Path(args.dataset) / "contact_sheet.png")
-    write_contact_sheet(output, dataset, args.channel)
+    write_contact_sheet(output, dataset, channel)
     print(f"{dataset}")
     print(f"wrote {output.resolve()}")
 

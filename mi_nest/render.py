@@ -218,6 +218,7 @@ def wavelength_channel(wavelength: float) -> str:
 # (benchmarks/spectral.py, docs/physics.md section 9); more compile longer.
 LANES_PER_MARCH = 16
 
+
 @dataclass(frozen=True)
 class WavelengthRenders:
     """What renders a scene (or a slice) at a group of up to ``per_call`` wavelengths: ``render(wavelengths)``

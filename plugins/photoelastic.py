@@ -112,6 +112,12 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     ``fringe.order`` and warns where fringes are denser than the pixel grid
     (:meth:`render_with_aliasing` returns the report with the image).
 
+    A render with a spectral view (``View`` lanes: what ``render_white_light``
+    and ``render_bands`` pass) marches several wavelengths at once, the stress
+    looked up once per step for all (``mi_nest/tracer/spectral.py``): the
+    channels above are the first wavelength's, and each wavelength adds its
+    main intensity (and, with ``lane_measurements``, its 16) after them.
+
     .. tabs::
 
         .. code-tab:: xml

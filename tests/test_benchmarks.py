@@ -61,11 +61,13 @@ CASES = {
                         r"\| case \| data \| options \| time \| iterations \| deviatoric error \|.*",
                         r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*"],
                        ["results/accuracy_suite_quick.csv", "results/accuracy_suite_quick.png"]),
-    "bands": (["--levels", "300", "--minutes", "0.02", "--res", "8", "--data", "{tmp}/data", "--results",
-               "{tmp}/results"],
-              [r"load 300, one band: [\d.]+% \(\d+ iterations in [\d.]+ s; one band aliased in \d+% of the pixels\)",
-               r"load 300, RGB camera: [\d.]+% .*",
-               r"\| load 300 \| [\d.]+% \| [\d.]+% \| [\d.]+% \|"],
+    "bands": (["--levels", "300", "--seeds", "0", "--minutes", "0.02", "--res", "8", "--data", "{tmp}/data",
+               "--results", "{tmp}/results"],
+              [r"load 300, one band, seed 0: [\d.]+% \(\d+ iterations in [\d.]+ s; one band aliased in \d+% of the "
+               r"pixels\)",
+               r"load 300, RGB camera, seed 0: [\d.]+% .*",
+               r"\| load 300 \| \d+% \| [\d.]+% \([\d.]+ to [\d.]+\) \| [\d.]+% \([\d.]+ to [\d.]+\) \| [\d.]+% "
+               r"\([\d.]+ to [\d.]+\) \| [\d.]+% \([\d.]+ to [\d.]+\) \|"],
               ["results/bands.csv", "results/bands.png"]),
     "dataset": (["--baseline", "{root}", "--rotations", "2", "--res", "16"],
                 [r"scene +version +total s +render ms +write ms +peak MiB",

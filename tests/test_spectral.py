@@ -141,3 +141,26 @@ def test_one_lane_shares_its_lookups_between_the_lanes():
 
     one, three = gathers(View()), gathers(View(lanes=(("a", 0.8), ("b", 1.0), ("c", 1.2))))
     assert one > 0 and three == one
+
+
+def test_a_white_light_slice_marches_its_wavelengths_together():
+    """A slice in white light (one spectral march per 16 wavelengths) against the same slice one wavelength at a
+    time; slices march straight chords, so a refracting scene's slice marches them together too."""
+    import importlib
+    from mi_nest.render import WavelengthRenders, in_white_light
+    from mi_nest.views import Plane, SliceSpec
+    from mi_nest.views.slicing import Slicer
+    slicing = importlib.import_module("mi_nest.views.slicing")
+    light = white_led(step=20.0)
+    for defines in ({"load": 300}, {"load": 300, "ior": 1.5}):
+        loaded = mi_nest.load_scene("disk_compression", **defines)
+        slicer = Slicer(loaded)
+        spec = SliceSpec(Plane((0, 0, 1), 0.0), 2.0, resolution=24)
+        together = slicing.slice_render_white_light(loaded, spec, light=light)
+
+        def one_at_a_time(wavelengths):
+            result = slicer.render(slicing.replace(spec, wavelength=wavelengths[0]))
+            return [{"Y": result.main}], result
+        reference = in_white_light(WavelengthRenders(one_at_a_time), light)
+        for channel in ("R", "G", "B", "I.400", "I.700"):
+            np.testing.assert_allclose(together.channels[channel], reference.channels[channel], atol=5e-4)

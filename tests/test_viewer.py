@@ -2,6 +2,7 @@
 and moves a slider; the frame the 3D view draws changes and equals a direct render of the same pose within 8-bit
 rounding; each tab keeps its own controls.
 """
+import contextlib
 import http.client
 import os
 import shutil
@@ -14,6 +15,7 @@ import pytest
 import mi_nest
 from mi_nest.cli import main
 from mi_nest.views.page_probe import PAGE_PROBE
+from mi_nest.render import render_white_light, white_light
 from mi_nest.views.viewer import FrameRenderer, Viewer, padded_to_aspect, to_rgb
 from mi_nest.physics.polariscope import polariscope_setting
 from mi_nest.scene import pose
@@ -55,13 +57,15 @@ def _direct(frame):
     return to_rgb(image)[..., 0].astype(int)
 
 
-def _shown(page):
+def _shown(page, colour=False):
     """The frame the page's 3D view drew last (its centre square of the frame's size, without the padding to the
-    view's aspect), decoded to grey levels; None before the first, or while the camera moves (JPEG previews)."""
+    view's aspect), decoded to grey levels (``colour``: RGB); None before the first, or while the camera moves
+    (JPEG previews)."""
     data = page.evaluate("window.__lastFrame && Array.from(window.__lastFrame)")
     if not data or bytes(data[:4]) != b"\x89PNG":
         return None
-    image = iio.imread(bytes(data), extension=".png")[..., 0].astype(int)
+    image = iio.imread(bytes(data), extension=".png")[..., :3 if colour else 1].astype(int)
+    image = image if colour else image[..., 0]
     top, left = (image.shape[0] - RESOLUTION) // 2, (image.shape[1] - RESOLUTION) // 2
     return image[top:top + RESOLUTION, left:left + RESOLUTION]
 
@@ -95,7 +99,9 @@ def _wait_for_new_frame(page, previous, seconds=60.0):
     raise AssertionError("the page did not show a new frame in time")
 
 
-def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
+@contextlib.contextmanager
+def _page(viewer):
+    """A headless browser's tab on the viewer, once it has drawn its first frame."""
     sync_api = _browser_or_skip()
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
@@ -104,29 +110,58 @@ def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
             page.add_init_script(PAGE_PROBE)
             page.goto(viewer.url)
             _wait_for_new_frame(page, None)
-            first, _ = _wait_until_shown(page, viewer, lambda frame: True)
-            assert first.max() > 100      # fringes, not a blank frame
-
-            # Drag across the 3D view: the camera turns about the part.
-            canvas = page.locator("canvas").first.bounding_box()
-            x, y = canvas["x"] + 0.3 * canvas["width"], canvas["y"] + 0.5 * canvas["height"]
-            page.mouse.move(x, y)
-            page.mouse.down()
-            page.mouse.move(x + 120, y + 40, steps=12)
-            page.mouse.up()
-            dragged, _ = _wait_until_shown(
-                page, viewer, lambda frame: not np.allclose(frame.to_world, viewer.frames.reference, atol=1e-6))
-            assert np.abs(dragged - first).mean() > 5
-
-            # A slider: the load scale, stepped with the keyboard.
-            slider = page.get_by_role("slider").nth(_slider_index(page, "load scale"))
-            slider.focus()
-            for _ in range(40):
-                page.keyboard.press("ArrowRight")
-            loaded, frame = _wait_until_shown(page, viewer, lambda frame: abs(frame.state.load_scale - 1.4) < 0.005)
-            assert np.abs(loaded - dragged).mean() > 5
+            yield page
         finally:
             browser.close()
+
+
+def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
+    with _page(viewer) as page:
+        first, _ = _wait_until_shown(page, viewer, lambda frame: True)
+        assert first.max() > 100      # fringes, not a blank frame
+
+        # Drag across the 3D view: the camera turns about the part.
+        canvas = page.locator("canvas").first.bounding_box()
+        x, y = canvas["x"] + 0.3 * canvas["width"], canvas["y"] + 0.5 * canvas["height"]
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x + 120, y + 40, steps=12)
+        page.mouse.up()
+        dragged, _ = _wait_until_shown(
+            page, viewer, lambda frame: not np.allclose(frame.to_world, viewer.frames.reference, atol=1e-6))
+        assert np.abs(dragged - first).mean() > 5
+
+        # A slider: the load scale, stepped with the keyboard.
+        slider = page.get_by_role("slider").nth(_slider_index(page, "load scale"))
+        slider.focus()
+        for _ in range(40):
+            page.keyboard.press("ArrowRight")
+        loaded, frame = _wait_until_shown(page, viewer, lambda frame: abs(frame.state.load_scale - 1.4) < 0.005)
+        assert np.abs(loaded - dragged).mean() > 5
+
+
+def test_a_tab_turned_to_white_light_shows_the_colour_render(viewer):
+    """The 'white light (LED)' box in the browser: the next frame at rest is the white-light render of its pose, in
+    colour, as the page draws it (8-bit RGB within one level)."""
+    with _page(viewer) as page:
+        page.get_by_text("white light (LED)").click()
+        deadline = time.monotonic() + 90
+        shown = expected = None
+        while time.monotonic() < deadline:
+            frame = viewer.last_frame
+            if frame is not None and viewer.settled and frame.state.white_light:
+                if expected is None or expected[0] is not frame:
+                    scene = mi_nest.load_scene("disk_compression", load=400, res=frame.resolution)
+                    pose(scene, frame.to_world)
+                    colour = render_white_light(scene, white_light(), spp=1, polariscope=frame.state.scope())
+                    expected = (frame, to_rgb(np.stack([colour.channels[c] for c in "RGB"], axis=-1)).astype(int))
+                shown = _shown(page, colour=True)
+                if shown is not None and shown.shape == expected[1].shape and np.abs(shown - expected[1]).max() <= 1:
+                    break
+            time.sleep(0.1)
+        else:
+            raise AssertionError("the page did not show the white-light render in time")
+        assert np.abs(shown[..., 0] - shown[..., 2]).max() > 50        # colours, not grey
 
 
 def _slider_index(page, label):

@@ -65,6 +65,25 @@ def test_mi_nest_render_of_a_reconstruction_is_its_field_rendered_at_that_pose(r
     assert np.abs(truth.channels["jones.b"] - shown["jones.b"]).max() > 1e-3
 
 
+def test_a_reconstruction_renders_in_white_light_as_its_field_would(result, tmp_path):
+    """``mi-nest render RECONSTRUCTION --white-light``: the colours of the reconstructed field (its spectral
+    march), each wavelength the monochromatic render of that field."""
+    from mi_nest.physics.colour import white_led
+    from mi_nest.render import View, phase_scale, render_white_light
+    output = tmp_path / "white.exr"
+    assert main(["render", str(result / "result"), "-o", str(output), "--white-light", "--quiet"]) == 0
+    shown = read_channels(output)
+    scene = mi_nest.load_scene("disk_compression", load=200, res=12)
+    field = Reconstruction.load(result / "result").field
+    direct = render_white_light(scene, white_led(step=10.0), field=field)
+    for name in ("R", "G", "B", "I.450", "I.650"):
+        np.testing.assert_allclose(shown[name], direct.channels[name], atol=1e-5)
+    alone = mi_nest.render(scene, field=field, view=View(phase_scale=phase_scale(scene, 1.0, 650.0))).main
+    np.testing.assert_allclose(shown["I.650"], alone, atol=5e-4)
+    truth = render_white_light(scene, white_led(step=10.0))
+    assert np.abs(truth.channels["R"] - shown["R"]).max() > 1e-3
+
+
 def test_the_polariscope_load_and_wavelength_options_change_what_they_name():
     source = open_source("disk_compression", {"res": "24"})
     from mi_nest.physics.polariscope import polariscope_setting

@@ -20,6 +20,7 @@ of wavelengths, the lanes a spectral march advances together
 from __future__ import annotations
 
 import csv
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,6 +86,22 @@ class BandSet:
         """``(bands, ...)`` band images from ``(wavelengths, ...)`` images, one per wavelength."""
         per_wavelength = np.asarray(per_wavelength)
         return np.tensordot(self.weights, per_wavelength, axes=(1, 0))
+
+    def resampled(self, step: float) -> BandSet:
+        """The bands every ``step`` nm over their span, each band's weight per nm interpolated and normalised
+        again: fewer wavelengths to trace where the bands are broad and their curves smooth. Bands already
+        sampled no finer, or any band of a single wavelength (a narrow band), are kept as they are."""
+        if not (math.isfinite(step) and step > 0):
+            raise BandError(f"the wavelength step must be a positive number of nm, got {step}")
+        if len(self.wavelengths) < 2 or np.diff(self.wavelengths).min() >= step or \
+                (np.count_nonzero(self.weights, axis=1) <= 1).any():
+            return self
+        grid = np.arange(self.wavelengths[0], self.wavelengths[-1] + 0.5 * step, step)
+        density = self.weights / np.gradient(self.wavelengths)
+        weights = np.stack([np.interp(grid, self.wavelengths, d) for d in density]) * \
+            (np.gradient(grid) if len(grid) > 1 else 1.0)
+        kept = weights.any(axis=0)
+        return BandSet(self.names, grid[kept], weights[:, kept], f"{self.source}, traced every {step:g} nm")
 
     def describe(self) -> str:
         centres = self.weights @ self.wavelengths

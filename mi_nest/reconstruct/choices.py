@@ -26,6 +26,8 @@ def data_facts(dataset: Dataset) -> str:
     width, height = dataset.resolution
     about = " and ".join(spans) if spans else "one pose"
     facts = f"{len(train)} training rotations, {about}, at {width}x{height} pixels"
+    if dataset.bands is not None:
+        facts += f", in {len(dataset.bands)} bands ({dataset.bands.describe()})"
     aliasing = dataset.index.get("fringe_aliasing")
     if aliasing and aliasing.get("views"):
         facts += (f"; fringes denser than the pixels in {100 * aliasing['mean_fraction']:.0f}% of the specimen's "

@@ -100,12 +100,16 @@ class ForwardModel:
     """How the rays are marched through the field (docs/methods.md)."""
     method: str = "product"          # product (NeST-general), magnus4, linear (NeST-approx), two-step (baseline)
     step_size: float | None = None   # mm; None: half the grid spacing, or the bounding box / 64
+    # nm between the wavelengths a dataset's broad bands (a colour camera's) are traced at; None: the dataset's own
+    spectral_step: float | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got '{self.method}'")
         if self.step_size is not None:
             _require_positive("step_size", self.step_size, "a positive length in mm")
+        if self.spectral_step is not None:
+            _require_positive("spectral_step", self.spectral_step, "a positive number of nm")
 
 
 @dataclass(frozen=True)

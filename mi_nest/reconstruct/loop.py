@@ -98,7 +98,7 @@ class Run:
         self.retardance = (RetardanceTargets(dataset, config.optimiser.mask)
                            if config.model.method == TWO_STEP or config.schedule.warm_start else None)
         self.error_probe = None
-        self.channels = ChannelModel.of(dataset, scene)
+        self.channels = ChannelModel.of(dataset, scene, config.model.spectral_step)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid

@@ -29,13 +29,14 @@ def write_test_view(scene: mi.Scene, result: Reconstruction, output: str | Path,
     channels.update({f"measured.{name}": measured[..., i] for i, name in enumerate(dataset.channels)})
     output = Path(output)
     write_channels(output / "test_view.exr", channels)
-    shown = "pol.45.0.135" if "pol.45.0.135" in dataset.channels else dataset.channels[0]
+    shown = next((name for name in dataset.channels if name.endswith("pol.45.0.135")), dataset.channels[0])
     rotation = dataset.rotations[position]
     ratio = view_psnr(predicted, dataset, position, result.config.optimiser.mask)
     write_comparison(output / "test_view.png", [("reconstructed", channels[f"reconstructed.{shown}"]),
                                                 ("measured", channels[f"measured.{shown}"])],
                      f"held-out rotation {rotation['index']} (azimuth {rotation['azimuth']:.1f}, elevation "
-                     f"{rotation['elevation']:.1f}): {shown}; PSNR of its 16 measurements {ratio:.1f} dB")
+                     f"{rotation['elevation']:.1f}): {shown}; PSNR of its {len(dataset.channels)} measurements "
+                     f"{ratio:.1f} dB")
     return ", test_view.exr, test_view.png (reconstructed, measured, difference)"
 
 

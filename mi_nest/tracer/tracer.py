@@ -169,7 +169,6 @@ class Tracer:
         if view.polariscope is not None:
             setup.polariscope = OpaquePolariscope(view.polariscope)
         if view.lanes:
-            guards.refuse_refraction(setup, "a march at several wavelengths")
             # The steps must suit the shortest wavelength's phases, the fastest.
             setup.strongest_phase_scale = view.phase_scale * max(factor for _, factor in view.lanes)
         if decision is None:
@@ -183,10 +182,15 @@ class Tracer:
         return TracePlan(setup, decision, view.lane_channels, view.lane_measurements)
 
     def marches_spectra(self, scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
-        """Whether several wavelengths can share one march in ``scene`` (:class:`View` ``lanes``): straight
-        paths (no refracting surface) and a method with a spectral march (``spectral.py``)."""
+        """Whether several wavelengths can share one march of ``scene``'s rays (:class:`View` ``lanes``):
+        straight paths (no refracting surface) and a method with a spectral march (``spectral.py``)."""
         refracting = SceneSetup(scene, sensor or scene.sensors()[0], marching=False).refracting
-        return not refracting and (isinstance(self.method, auto.Auto) or can_march_spectra(self.method))
+        return not refracting and self.has_spectral_march()
+
+    def has_spectral_march(self) -> bool:
+        """Whether the configured method marches several wavelengths at once (``auto`` chooses one that does);
+        chords that the caller chose (:meth:`trace_chords`) are straight in any scene."""
+        return isinstance(self.method, auto.Auto) or can_march_spectra(self.method)
 
     def decide(self, scene: mi.Scene, sensor: mi.Sensor, field: StressField | None = None,
                view: View = SCENE_VIEW) -> Decision:
@@ -386,6 +390,8 @@ class Tracer:
     def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool,
                        seeds: mi.UInt32, bounces: int = 0) -> refraction.RefractedPath:
         """The walk where surfaces refract (``refraction.py``)."""
+        if plan.lanes:
+            guards.refuse_refraction(plan.setup, "a march at several wavelengths")
         return refraction.trace(scene, ray, plan.setup, plan.decision.method, plan.decision.step_size, seeds,
                                 active, self.config.max_crossings, bounces)
 

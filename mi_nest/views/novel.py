@@ -17,11 +17,11 @@ from .. import interrupts
 from ..dataset import Dataset
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
-from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope
 from ..reconstruct.evaluation import view_psnr
+from ..physics.bands import BandSet
 from ..physics.colour import Spectrum
-from ..render import RenderResult, ViewError, phase_scale, render, render_white_light
+from ..render import RenderResult, ViewError, phase_scale, render, render_bands, render_white_light
 from ..scene import pose
 from ..tracer import View
 from .plots import pyplot, save_figure
@@ -41,19 +41,20 @@ def view_pose(source: ViewSource, azimuth: float = 0.0, elevation: float = 0.0) 
 def render_view(source: ViewSource, azimuth: float = 0.0, elevation: float = 0.0,
                 polariscope: Polariscope | None = None, load_scale: float = 1.0, wavelength: float | None = None,
                 spp: int | None = None, seed: int = 0, progress: bool = False,
-                light: Spectrum | None = None) -> RenderResult:
+                light: Spectrum | None = None, bands: BandSet | None = None) -> RenderResult:
     """Render ``source`` (its true or reconstructed field) with the specimen turned to ``azimuth``/``elevation``,
-    through ``polariscope`` (None: the scene's) at ``load_scale`` times the load and ``wavelength`` (nm), or in
-    the white ``light`` given (``render.render_white_light``: a colour image)."""
+    through ``polariscope`` (None: the scene's) at ``load_scale`` times the load and ``wavelength`` (nm), in the
+    white ``light`` given (``render.render_white_light``: a colour image) or seen in ``bands``
+    (``render.render_bands``: each band's measurements)."""
     result = render_pose(source, view_pose(source, azimuth, elevation), polariscope, load_scale, wavelength, spp,
-                         seed, progress, light)
+                         seed, progress, light, bands)
     result.metadata.update({"mi_nest.azimuth": f"{azimuth:g}", "mi_nest.elevation": f"{elevation:g}"})
     return result
 
 
 def render_pose(source: ViewSource, to_world: np.ndarray, polariscope: Polariscope | None = None,
                 load_scale: float = 1.0, wavelength: float | None = None, spp: int | None = None, seed: int = 0,
-                progress: bool = False, light: Spectrum | None = None) -> RenderResult:
+                progress: bool = False, light: Spectrum | None = None, bands: BandSet | None = None) -> RenderResult:
     """Render ``source`` with its camera at ``to_world`` (4x4), as :func:`render_view` does at its angles: what
     the viewer renders where a drag left the camera."""
     pose(source.scene, to_world)
@@ -62,6 +63,8 @@ def render_pose(source: ViewSource, to_world: np.ndarray, polariscope: Polarisco
             raise ViewError(f"white light holds every wavelength of '{light.name}': leave out the wavelength "
                             f"({wavelength:g} nm)")
         result = render_white_light(source.scene, light, spp, seed, progress, source.field, polariscope, load_scale)
+    elif bands is not None:
+        result = render_bands(source.scene, bands, spp, seed, progress, source.field, polariscope, load_scale)
     else:
         scale = phase_scale(source.scene, load_scale, wavelength)
         result = render(source.scene, spp=spp, seed=seed, progress=progress, field=source.field,
@@ -133,7 +136,8 @@ def held_out_views(source: ViewSource, count: int = 6, channel: str | None = Non
                    spp: int | None = None) -> list[tuple[dict, np.ndarray, np.ndarray, float]]:
     """Up to ``count`` of the dataset's held-out rotations of a reconstruction: ``(rotation, captured,
     rendered, psnr)``, images of ``channel`` (default: the dataset's first) rendered by :func:`render_view`,
-    and the PSNR of all 16 measurements over the specimen's pixels, as ``mi-nest reconstruct`` reports it."""
+    and the PSNR of all its measurements over the specimen's pixels, as ``mi-nest reconstruct`` reports it (in
+    the dataset's bands, for a dataset of several)."""
     if not source.is_reconstruction:
         raise ValueError(f"{source.name} is a scene; held-out views are a reconstruction's: give the output "
                          "directory of mi-nest reconstruct")
@@ -148,8 +152,8 @@ def held_out_views(source: ViewSource, count: int = 6, channel: str | None = Non
     for position in positions:
         interrupts.check()
         rotation = dataset.rotations[position]
-        rendered = render_view(source, rotation["azimuth"], rotation["elevation"], spp=spp)
-        predicted = np.stack([rendered.channels[name].ravel() for name in MEASUREMENTS], axis=-1)
+        rendered = render_view(source, rotation["azimuth"], rotation["elevation"], spp=spp, bands=dataset.bands)
+        predicted = np.stack([rendered.channels[name].ravel() for name in dataset.channels], axis=-1)
         ratio = view_psnr(predicted, dataset, position, source.reconstruction.config.optimiser.mask)
         views.append((rotation, dataset.view(position, [channel])[channel], rendered.channels[channel], ratio))
     return views

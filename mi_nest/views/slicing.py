@@ -27,8 +27,8 @@ from ..arguments import whole_number
 from ..arrays import device_array
 from ..physics.colour import Spectrum
 from ..physics.polariscope import Polariscope, polariscope_setting
-from ..render import (RenderResult, WavelengthRenders, check_light_and_load, in_white_light, phase_scale,
-                      require_memory)
+from ..render import (LANES_PER_MARCH, RenderResult, WavelengthRenders, check_light_and_load, in_white_light,
+                      phase_scale, require_memory)
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
 from ..tracer import View
 from ..version import __version__
@@ -240,14 +240,7 @@ def slice_render_white_light(scene: mi.Scene, spec: SliceSpec, field: object | N
     """The slab in white light (default: the white LED, ``physics.colour.white_led``), as a photoelastician
     looks at a frozen-stress slice: its fringes at each of the light's wavelengths seen as colour
     (``render.in_white_light``: ``R``, ``G``, ``B``, ``Y`` and ``I.<nm>``)."""
-    if spec.wavelength is not None:
-        raise SliceError(f"white light holds every wavelength: leave out the wavelength ({spec.wavelength:g} nm)")
-    slicer = Slicer(scene)
-
-    def render_at(wavelengths: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
-        result = slicer.render(replace(spec, wavelength=wavelengths[0]), field)
-        return [{"Y": result.main}], result
-    return in_white_light(WavelengthRenders(render_at), light, progress)
+    return Slicer(scene).render_white_light(spec, field, light, progress)
 
 
 @dataclass(frozen=True)
@@ -284,8 +277,10 @@ class Slicer:
             self._lines[key] = SliceLines(starts, -n, far, inside)
         return self._lines[key]
 
-    def render(self, spec: SliceSpec, field: object | None = None) -> RenderResult:
-        """:func:`slice_render` of this scene."""
+    def render(self, spec: SliceSpec, field: object | None = None,
+               lanes: tuple[tuple[str, float], ...] = ()) -> RenderResult:
+        """:func:`slice_render` of this scene; with ``lanes`` (``View.lanes``: a channel name and a factor on
+        every phase per wavelength), their main channels too, from one spectral march."""
         start = time.perf_counter()
         scene = self.scene
         image = slice_image(scene, spec.plane, spec.resolution)
@@ -296,7 +291,7 @@ class Slicer:
         if not np.isfinite(begin).any():
             raise SliceError(_empty_message(scene, spec))
         integrator = photoelastic_integrator(scene)
-        view = View(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength))
+        view = View(spec.polariscope, phase_scale(scene, spec.load_scale, spec.wavelength), lanes)
         count = len(lines.starts)
         chords = [(device_array(mi.Float, b), device_array(mi.Float, e), device_array(mi.UInt32, m, np.uint32))
                   for b, e, m in zip(np.where(np.isfinite(begin), begin, 0.0), np.where(np.isfinite(end), end, 0.0),
@@ -307,7 +302,7 @@ class Slicer:
             step_size=spec.thickness / STEPS_PER_THICKNESS, field=field, view=view)
         shape = (image.height, image.width)
         channels = {"Y": np.array(main, dtype=np.float32).reshape(shape)}
-        for name, value in zip(integrator.aov_names(), aovs):
+        for name, value in zip(integrator.aov_names() + list(view.lane_channels), aovs):
             channels[name] = np.array(value, dtype=np.float32).reshape(shape)
         b, c = (np.array(x, dtype=np.float64) for x in fringe)
         # The generator is -(phase) (sin 2 phi, cos 2 phi) in (b, c) for sigma_1 at phi from image right.
@@ -318,6 +313,26 @@ class Slicer:
                     "mi_nest.pixel_mm": f"{image.pixel:.9g}",
                     "mi_nest.extent_mm": ",".join(f"{x:.9g}" for x in image.extent())}
         return RenderResult(channels=channels, seconds=time.perf_counter() - start, metadata=metadata)
+
+    def render_white_light(self, spec: SliceSpec, field: object | None = None, light: Spectrum | None = None,
+                           progress: bool = False) -> RenderResult:
+        """:func:`slice_render_white_light` of this scene: up to ``LANES_PER_MARCH`` wavelengths per march."""
+        if spec.wavelength is not None:
+            raise SliceError(f"white light holds every wavelength: leave out the wavelength ({spec.wavelength:g} nm)")
+        scene = self.scene
+
+        def in_one_march(wavelengths: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
+            lanes = tuple((f"lane.{index}", phase_scale(scene, spec.load_scale, w))
+                          for index, w in enumerate(wavelengths))
+            result = self.render(spec, field, lanes)
+            return [{"Y": result.channels[name]} for name, _ in lanes], result
+
+        def one_at_a_time(wavelengths: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
+            result = self.render(replace(spec, wavelength=wavelengths[0]), field)
+            return [{"Y": result.main}], result
+        spectral = photoelastic_integrator(scene).tracer.has_spectral_march()
+        renders = WavelengthRenders(in_one_march, LANES_PER_MARCH) if spectral else WavelengthRenders(one_at_a_time)
+        return in_white_light(renders, light, progress)
 
     @staticmethod
     def _slab_chords(spec, lines):

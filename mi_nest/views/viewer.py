@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS, polariscope_setting
+from ..render import COLOUR_CHANNELS, white_light
 from ..scene import SceneError, specimen_bounds, specimen_media, specimen_shapes
 from .slicing import AXES, Plane, SliceError, Slicer, SliceSpec
 from .source import open_source
@@ -46,6 +47,7 @@ class ViewState:
     angle: float = 0.0
     load_scale: float = 1.0
     wavelength: float | None = None
+    white_light: bool = False        # the white LED instead of the wavelength: a colour frame
 
     def scope(self):
         return polariscope_setting(self.polariscope, self.field, self.angle)
@@ -54,7 +56,7 @@ class ViewState:
 @dataclass
 class Frame:
     """A rendered frame: what it shows and how it was made."""
-    image: np.ndarray           # (H, W) float32 intensity
+    image: np.ndarray           # (H, W) float32 intensity, or (H, W, 3) sRGB in white light
     state: ViewState
     to_world: np.ndarray        # the camera (part mode)
     resolution: int
@@ -127,20 +129,26 @@ class FrameRenderer:
         source = self.sources[resolution]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")      # aliasing at a preview's resolution is expected
+            light = white_light() if state.white_light else None
+            wavelength = None if state.white_light else state.wavelength
             if state.mode == "slice":
                 spec = SliceSpec(Plane(AXES[state.axis], state.offset), state.thickness, resolution=resolution,
-                                 polariscope=state.scope(), load_scale=state.load_scale, wavelength=state.wavelength)
-                image = self.slicers[resolution].render(spec, source.field).main
+                                 polariscope=state.scope(), load_scale=state.load_scale, wavelength=wavelength)
+                slicer = self.slicers[resolution]
+                result = slicer.render(spec, source.field) if light is None else \
+                    slicer.render_white_light(spec, source.field, light)
             else:
-                image = render_pose(source, to_world, state.scope(), state.load_scale, state.wavelength, spp=1).main
+                result = render_pose(source, to_world, state.scope(), state.load_scale, wavelength, spp=1,
+                                     light=light)
+            image = result.main if light is None else np.stack([result.channels[c] for c in COLOUR_CHANNELS], -1)
         return Frame(np.asarray(image, dtype=np.float32), state, to_world, resolution, time.perf_counter() - start)
 
 
 
 def to_rgb(image: np.ndarray) -> np.ndarray:
-    """8-bit grey RGB of an intensity image (0 to 1)."""
-    grey = np.round(255.0 * np.clip(image, 0.0, 1.0)).astype(np.uint8)
-    return np.repeat(grey[..., None], 3, axis=-1)
+    """8-bit RGB of an intensity image (0 to 1: grey) or of a white-light frame's display-encoded sRGB."""
+    levels = np.round(255.0 * np.clip(image, 0.0, 1.0)).astype(np.uint8)
+    return levels if levels.ndim == 3 else np.repeat(levels[..., None], 3, axis=-1)
 
 
 def padded_to_aspect(rgb: np.ndarray, aspect: float, fill: int) -> np.ndarray:
@@ -320,7 +328,13 @@ class Viewer:
             wavelength = gui.add_slider("wavelength (nm)", min=380.0, max=780.0, step=1.0,
                                         initial_value=float(round(state.wavelength)))
             load.on_update(lambda event: changed(load_scale=float(load.value)))
+            white = gui.add_checkbox("white light (LED)", initial_value=state.white_light)
             wavelength.on_update(lambda event: changed(wavelength=float(wavelength.value)))
+
+            def on_white(event):
+                wavelength.disabled = white.value     # white light holds every wavelength
+                changed(white_light=bool(white.value))
+            white.on_update(on_white)
         reset = gui.add_button("reset view")
         reset.on_click(lambda event: self._place(client))
         return gui.add_markdown("rendering...")
