@@ -100,29 +100,29 @@ DIAGNOSTIC_CASES = [
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
 
 
+def run_command(command: str, arguments: list[str]) -> float:
+    """``mi-nest COMMAND ARGUMENTS`` from the checkout; the seconds it took, or RuntimeError with its last line."""
+    start = time.perf_counter()
+    done = subprocess.run([*CLI, command, *arguments], cwd=HERE, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{command} failed: {done.stderr.strip().splitlines()[-1]}")
+    return time.perf_counter() - start
+
+
 def simulate(case: Case, data: Path, rotations: int, res: int) -> float:
     """The case's dataset in ``data`` (resumed when there); returns the seconds it took."""
-    start = time.perf_counter()
-    command = [*CLI, "simulate", case.scene, "-o", str(data), "--azimuth", str(rotations), "--elevation",
-               str(rotations), "--res", str(res), "--noise", str(NOISE), "--seed", str(SEED),
-               "--azimuth-range", f"{case.angle_range:g}", "--elevation-range", f"{case.angle_range:g}"]
-    command += [f"-D{name}={value}" for name, value in case.defines.items()]
-    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"simulate failed: {done.stderr.strip().splitlines()[-1]}")
-    return time.perf_counter() - start
+    return run_command("simulate", [case.scene, "-o", str(data), "--azimuth", str(rotations), "--elevation",
+                                    str(rotations), "--res", str(res), "--noise", str(NOISE), "--seed", str(SEED),
+                                    "--azimuth-range", f"{case.angle_range:g}", "--elevation-range",
+                                    f"{case.angle_range:g}", *(f"-D{k}={v}" for k, v in case.defines.items())])
 
 
 def reconstruct(case: Case, data: Path, output: Path, minutes: float, track_every: int) -> dict:
     """``mi-nest reconstruct`` of ``data`` within ``minutes``: the wall time and what it recorded."""
-    start = time.perf_counter()
-    command = [*CLI, "reconstruct", str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
-               "--allow-aliased", "--no-progress", "--option", f"track_error_every={track_every}", *case.flags]
-    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"reconstruct failed: {done.stderr.strip().splitlines()[-1]}")
-    record = json.loads((output / "reconstruction.json").read_text())
-    return {"wall": time.perf_counter() - start, "record": record}
+    wall = run_command("reconstruct", [str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
+                                       "--allow-aliased", "--no-progress", "--option",
+                                       f"track_error_every={track_every}", *case.flags])
+    return {"wall": wall, "record": json.loads((output / "reconstruction.json").read_text())}
 
 
 def row_of(case: Case, rotations: int, res: int, minutes: float, simulated: float, run: dict) -> dict:

@@ -19,7 +19,7 @@ one-band data's share of aliased pixels, the median over seeds and their range, 
 held-out PSNR and iterations of each run, with the CPU. Every finished run is written at once: an interrupted
 sweep keeps what it did, a rerun skips it.
 
-    python benchmarks/bands.py                       # the disk, 3 loads x 3 arms x 3 seeds, 1.5 min each (50 min)
+    python benchmarks/bands.py                       # the disk, 3 loads x 4 arms x 3 seeds, 1.5 min each (65 min)
     python benchmarks/bands.py --scene kitten        # the kitten's fringe values
     python benchmarks/bands.py --levels 300 --seeds 0 --minutes 0.1 --res 16    # a smoke run
 """
@@ -27,13 +27,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from accuracy_suite import CLI, HERE, NOISE, SEED, read_rows, write_rows
+from accuracy_suite import HERE, NOISE, SEED, read_rows, run_command, write_rows
 from reconstruction import cpu_name
 
 
@@ -57,27 +55,17 @@ SWEEPS = {"disk_compression": ("load", (100, 300, 600), {"contact_width": 4}),
 
 
 def simulate(scene: str, defines: dict, arm: Arm, data: Path, res: int) -> float:
-    start = time.perf_counter()
-    command = [*CLI, "simulate", scene, "-o", str(data), "--azimuth", str(arm.azimuths), "--elevation",
-               str(arm.elevations), "--res", str(res), "--noise", str(NOISE), "--seed", str(SEED)]
-    command += [f"-D{name}={value}" for name, value in defines.items()]
-    if arm.bands is not None:
-        command += ["--bands", arm.bands]
-    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"simulate failed: {done.stderr.strip().splitlines()[-1]}")
-    return time.perf_counter() - start
+    bands = [] if arm.bands is None else ["--bands", arm.bands]
+    return run_command("simulate", [scene, "-o", str(data), "--azimuth", str(arm.azimuths), "--elevation",
+                                    str(arm.elevations), "--res", str(res), "--noise", str(NOISE), "--seed",
+                                    str(SEED), *(f"-D{k}={v}" for k, v in defines.items()), *bands])
 
 
 def reconstruct(data: Path, output: Path, minutes: float, options: tuple, seed: int) -> dict:
-    start = time.perf_counter()
-    command = [*CLI, "reconstruct", str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
-               "--allow-aliased", "--no-progress", "--option", "track_error_every=50", "--option", f"seed={seed}",
-               *options]
-    done = subprocess.run(command, cwd=HERE, capture_output=True, text=True)
-    if done.returncode != 0:
-        raise RuntimeError(f"reconstruct failed: {done.stderr.strip().splitlines()[-1]}")
-    return {"wall": time.perf_counter() - start, "record": json.loads((output / "reconstruction.json").read_text())}
+    wall = run_command("reconstruct", [str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
+                                       "--allow-aliased", "--no-progress", "--option", "track_error_every=50",
+                                       "--option", f"seed={seed}", *options])
+    return {"wall": wall, "record": json.loads((output / "reconstruction.json").read_text())}
 
 
 def aliased_share(data: Path) -> float:
@@ -102,7 +90,8 @@ def chart(rows: list[dict], sweep: str, path: Path, title: str) -> None:
         errors = [np.array(values) for _, values in cells.values()]
         median = [float(np.median(e)) for e in errors]
         spread = [[m - e.min() for m, e in zip(median, errors)], [e.max() - m for m, e in zip(median, errors)]]
-        axis.errorbar(x, median, yerr=spread, fmt="o-", capsize=3, label=arm.name)
+        views = "" if "views" in arm.name else f", {arm.azimuths} x {arm.elevations} views"
+        axis.errorbar(x, median, yerr=spread, fmt="o-", capsize=3, label=arm.name + views)
         for xi, yi, level in zip(x, median, cells):
             axis.annotate(f"{sweep} {level}", (xi, yi), fontsize=6, textcoords="offset points", xytext=(3, 3))
     axis.set(xlabel="share of the specimen's pixels whose fringes alias (one band, 532 nm)",
@@ -187,7 +176,7 @@ def main():
                       f"{100 * row['one_band_aliased']:.0f}% of the pixels)", flush=True)
     if rows:
         chart(rows, sweep, args.results / f"{label}.png",
-              f"{args.scene}: one band or three, same images and {args.minutes:g} min; {cpu_name()}")
+              f"{args.scene}: one band or three, same images and {args.minutes:g} min\n{cpu_name()}")
         print("median over seeds (best to worst):")
         print("| " + " | ".join(["level", "aliased (one band)"] + [arm.name for arm in ARMS]) + " |")
         print("|---|---:|" + "---:|" * len(ARMS))
