@@ -13,6 +13,7 @@ import numpy as np
 from scipy.ndimage import convolve
 
 from ..physics.bands import BandSet
+from .format import band_of
 
 # The IMX250MZR's 2x2 micro-polariser cell (analyser angles, degrees): 90 45 over 135 0.
 MOSAIC = ((90, 45), (135, 0))
@@ -93,20 +94,16 @@ def mosaic_mask(analyser: int, shape: tuple[int, int], colour: str | None = None
             if angle == analyser:
                 mask[row::2, column::2] = True
     if colour is not None:
-        under = np.zeros(shape, dtype=bool)
-        for row, cells in enumerate(BAYER):
-            for column, name in enumerate(cells):
-                if name == colour:
-                    for r in range(2):
-                        under[2 * row + r::4, 2 * column:: 4] = True
-                        under[2 * row + r::4, 2 * column + 1::4] = True
-        mask &= under
+        # Each pixel's 2 x 2 polariser cell, and that cell's place in the Bayer pattern of cells.
+        cell_row, cell_column = (np.arange(n) // 2 % 2 for n in shape)
+        mask &= np.array(BAYER)[cell_row[:, None], cell_column[None, :]] == colour
     return mask
 
 
 def _site(name, sites):
     """The colour filter a channel ``<band>.pol...`` is seen through (None: a monochrome sensor)."""
-    return sites.get(name[:name.index(".pol.")]) if sites and ".pol." in name else None
+    band = band_of(name)
+    return sites.get(band) if sites and band is not None else None
 
 
 def _through_mosaic(names, stack, sites):

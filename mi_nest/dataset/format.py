@@ -55,6 +55,12 @@ def measurement_of(channel: str) -> str:
     return channel[channel.index("pol."):]
 
 
+def band_of(channel: str) -> str | None:
+    """The band a measurement channel ``<band>.pol...`` holds (None: a one-band dataset's ``pol...``)."""
+    measurement = measurement_of(channel)
+    return channel[:-len(measurement) - 1] if len(channel) > len(measurement) else None
+
+
 def dataset_bands(index: dict) -> BandSet | None:
     """The bands a dataset was measured in (None: one wavelength, ``wavelength``)."""
     record = index.get("bands")

@@ -136,7 +136,7 @@ class Dataset:
         """Per channel, in ``channels`` order, the index of its band in ``bands`` (None: one wavelength)."""
         if self.bands is None:
             return None
-        return tuple(self.bands.names.index(name[:name.index(".pol.")]) for name in self.channels)
+        return tuple(self.bands.names.index(fmt.band_of(name)) for name in self.channels)
 
     def to_world(self, position: int) -> np.ndarray:
         """The 4x4 camera-to-world matrix of rotation ``position`` (the camera turned about the specimen)."""

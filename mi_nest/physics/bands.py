@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .colour import Spectrum, white_led
+from .colour import Spectrum, checked_wavelengths, white_led
 
 # colour-science's name of the curves :func:`camera_bands` uses by default, and the names its channels get.
 RGB_SENSOR = "Nikon 5100 (NPL)"
@@ -53,14 +53,8 @@ class BandSet:
 
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
-        wavelengths = np.atleast_1d(np.asarray(self.wavelengths, dtype=np.float64))
+        wavelengths = checked_wavelengths(self.wavelengths, "band wavelengths", BandError)
         weights = np.atleast_2d(np.asarray(self.weights, dtype=np.float64))
-        if wavelengths.ndim != 1 or not len(wavelengths):
-            raise BandError("bands need at least one wavelength (nm)")
-        if not (np.all(np.isfinite(wavelengths)) and np.all(wavelengths > 0)):
-            raise BandError(f"band wavelengths must be positive numbers of nm, got {wavelengths.tolist()}")
-        if np.any(np.diff(wavelengths) <= 0):
-            raise BandError(f"band wavelengths must increase, without repeats: got {wavelengths.tolist()}")
         if not names:
             raise BandError("a band set needs at least one band")
         if len(set(names)) != len(names) or any(not n or "." in n or n.isspace() for n in names):
@@ -169,9 +163,7 @@ def read_bands(path: str | Path, light: Spectrum | None = None, step: float = BA
                         "sensitivity)") from None
     if values.shape[1] != len(names) + 1:
         raise BandError(f"{path}: rows must have {len(names) + 1} numbers, as the header names")
-    wavelengths = values[:, 0]
-    if np.any(np.diff(wavelengths) <= 0) or np.any(wavelengths <= 0):
-        raise BandError(f"{path}: the wavelengths must be positive and increase, without repeats")
+    wavelengths = checked_wavelengths(values[:, 0], f"{path}: the wavelengths", BandError)
     return camera_bands(light, (wavelengths, values[:, 1:], names), step, f"{path.name} under the light")
 
 

@@ -29,14 +29,8 @@ class Spectrum:
     name: str = ""
 
     def __post_init__(self):
-        wavelengths = np.atleast_1d(np.asarray(self.wavelengths, dtype=np.float64))
+        wavelengths = checked_wavelengths(self.wavelengths, "a spectrum's wavelengths")
         power = np.broadcast_to(np.asarray(self.power, dtype=np.float64), wavelengths.shape).copy()
-        if wavelengths.ndim != 1 or len(wavelengths) == 0:
-            raise ValueError("a spectrum needs at least one wavelength (nm)")
-        if not (np.all(np.isfinite(wavelengths)) and np.all(wavelengths > 0)):
-            raise ValueError(f"wavelengths must be positive numbers of nm, got {wavelengths.tolist()}")
-        if np.any(np.diff(wavelengths) <= 0):
-            raise ValueError(f"wavelengths must increase, without repeats: got {wavelengths.tolist()}")
         if not (np.all(np.isfinite(power)) and np.all(power >= 0) and power.sum() > 0):
             raise ValueError("a spectrum's power must be finite, not negative, and not zero everywhere")
         object.__setattr__(self, "wavelengths", wavelengths)
@@ -47,6 +41,19 @@ class Spectrum:
         if len(self.wavelengths) == 1:
             return self.power.copy()
         return self.power * np.gradient(self.wavelengths)
+
+
+def checked_wavelengths(values, what: str, error: type[ValueError] = ValueError) -> np.ndarray:
+    """``values`` as wavelengths (nm): one or more, positive, increasing without repeats; else ``error``, whose
+    message names them as ``what``."""
+    wavelengths = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    if wavelengths.ndim != 1 or len(wavelengths) == 0:
+        raise error(f"{what}: give at least one wavelength (nm)")
+    if not (np.all(np.isfinite(wavelengths)) and np.all(wavelengths > 0)):
+        raise error(f"{what} must be positive numbers of nm, got {wavelengths.tolist()}")
+    if np.any(np.diff(wavelengths) <= 0):
+        raise error(f"{what} must increase, without repeats: got {wavelengths.tolist()}")
+    return wavelengths
 
 
 def monochromatic(wavelength: float = 532.0) -> Spectrum:

@@ -36,6 +36,8 @@ class ChannelModel:
         if (bands is None) != (self.channel_bands is None) or \
                 (self.channel_bands is not None and len(self.channel_bands) != len(self.scopes)):
             raise ValueError("a channel model of several bands needs the band of every channel")
+        # Per channel of several bands, its quadratic form's entries on PAIRS (off-diagonal ones counted twice).
+        self.forms = None if bands is None else [quadratic_form(scope) for scope in self.scopes]
 
     @classmethod
     def of(cls, dataset: Dataset, scene: mi.Scene, spectral_step: float | None = None) -> ChannelModel:
@@ -60,14 +62,7 @@ class ChannelModel:
         coherencies = [tuple(sum(float(w) * q[i] * q[j] for w, q in zip(weights, traced) if w > 0) for i, j in PAIRS)
                        for weights in self.bands.weights]
         return [sum(m * s for m, s in zip(form, coherencies[band]) if m != 0.0)
-                for form, band in zip(self._forms, self.channel_bands)]
-
-    @property
-    def _forms(self) -> list[tuple[float, ...]]:
-        """Per channel, its quadratic form's entries on :data:`PAIRS` (off-diagonal ones counted twice)."""
-        if not hasattr(self, "_form_cache"):
-            self._form_cache = [quadratic_form(scope) for scope in self.scopes]
-        return self._form_cache
+                for form, band in zip(self.forms, self.channel_bands)]
 
 
 # The entries (i, j), i <= j, of a symmetric 4 x 4 matrix.

@@ -79,8 +79,6 @@ class Spectral:
     """What every spectral march shares: the lanes' phase factors, opaque so that another set of wavelengths
     of the same count launches the same kernel."""
 
-    spectral = True
-
     def __init__(self, inner: Method, factors: tuple[float, ...]):
         self.inner, self.factors = inner, tuple(float(f) for f in factors)
         self.name, self.label, self.unitary = inner.name, inner.label, inner.unitary
@@ -98,16 +96,12 @@ class Spectral:
 
     def jones_lanes(self, state: tuple) -> list[su2.Quaternion]:
         """Each wavelength's Jones quaternion from a ray's state."""
-        finished = self.finish(state)
-        return [su2.Quaternion(tuple(finished[k:k + LANE])) for k in range(0, len(finished), LANE)]
+        return split_lanes(self.finish(state))
 
 
 class SpectralChain(Spectral, ChainMethod):
     """``product`` or ``magnus4`` at several wavelengths: ``ChainMethod``'s march and replay in the algebra of
     lanes, each step one lookup and one propagator per lane."""
-
-    def __init__(self, inner: ChainMethod, factors: tuple[float, ...]):
-        Spectral.__init__(self, inner, factors)
 
     def step(self, sample: StepSample) -> tuple[tuple, Fringe]:
         shared = SharedLookups(sample)
@@ -168,7 +162,11 @@ def can_march_spectra(method: Method) -> bool:
     return isinstance(method, tuple(SPECTRAL_MARCHES))
 
 
+def split_lanes(flat: tuple) -> list[su2.Quaternion]:
+    """The lanes of a flat spectral state (or of its finished Jones quaternions), one quaternion each."""
+    return [su2.Quaternion(tuple(flat[k:k + LANE])) for k in range(0, len(flat), LANE)]
+
+
 def _lanewise(operation, *states: tuple) -> tuple:
     """``operation`` on each lane of flat spectral states, the lanes side by side again."""
-    return tuple(x for k in range(0, len(states[0]), LANE)
-                 for x in operation(*(su2.Quaternion(tuple(s[k:k + LANE])) for s in states)))
+    return tuple(x for lanes in zip(*(split_lanes(s) for s in states)) for x in operation(*lanes))

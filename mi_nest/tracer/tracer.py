@@ -26,7 +26,7 @@ from .methods import Decision, Method
 from .segment import Segment, equal_steps
 from .registry import method_named, require_adjoint, require_replay_through_refraction
 from .setup import SceneSetup
-from .spectral import can_march_spectra, spectral
+from .spectral import can_march_spectra, spectral, split_lanes
 from .walk import past_panel, walk
 
 
@@ -363,8 +363,8 @@ class Tracer:
         setup = plan.setup
         lanes = []
         if plan.lanes:      # a spectral march's: the channels of its first wavelength, each one's main intensity
-            lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens[k:k + 4]))
-                     for k in range(0, len(specimens), 4)]
+            lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in lane))
+                     for lane in split_lanes(specimens)]
             specimens = lanes[0]
         q = su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens))
         matrix = q if path_jones is None else _jones(PathKind.REFRACTED, plan.decision.method,
