@@ -56,9 +56,10 @@ def measurement_of(channel: str) -> str:
 
 
 def band_of(channel: str) -> str | None:
-    """The band a measurement channel ``<band>.pol...`` holds (None: a one-band dataset's ``pol...``)."""
-    measurement = measurement_of(channel)
-    return channel[:-len(measurement) - 1] if len(channel) > len(measurement) else None
+    """The band of a channel ``<band>.pol...`` (None for any other: a one-band dataset's ``pol...``, or a raw
+    analyser image)."""
+    band, separator, _ = channel.partition(".pol.")
+    return band if separator else None
 
 
 def dataset_bands(index: dict) -> BandSet | None:
