@@ -10,7 +10,7 @@ each on the scene's own analytic field and on that field sampled on a 64^3 grid 
 trilinear lookup per step). Prints ray-steps/s per wavelength and the cost of ``n`` wavelengths against one
 (the issue's target: three cost well under three times one), and checks that each lane equals the monochromatic
 march at its wavelength. Last, a white-light render of the shipped disk at 300 N (41 wavelengths) against one
-render per wavelength.
+render per wavelength, index-matched and at n = 1.55 in air (refracted paths, ghosts included).
 
     python benchmarks/spectral.py [--scene twisted_block] [--step 0.1] [--res 256] [--repeats 3]
 """
@@ -81,11 +81,12 @@ def camera_rays(scene: mi.Scene, res: int) -> tuple[mi.Ray3f, mi.Vector3f]:
     return rays, dr.zeros(mi.Vector3f, res * res) + right
 
 
-def white_light(args):
-    """``render_white_light`` of the shipped disk at 300 N (the white LED's 41 wavelengths) against one render per
+def white_light(args, ior: float):
+    """``render_white_light`` of the shipped disk at 300 N (the white LED's 41 wavelengths) of index ``ior`` in air
+    (1: index-matched, straight rays; otherwise the refracted walk, ghosts included) against one render per
     wavelength, both through ``in_white_light``."""
     from mi_nest.render import WavelengthRenders, in_white_light, render_white_light, white_light as led
-    disk = mi_nest.load_scene("disk_compression", res=args.res, spp=1, load=300)
+    disk = mi_nest.load_scene("disk_compression", res=args.res, spp=1, load=300, ior=ior)
     light = led()
 
     def one_at_a_time(wavelengths):
@@ -94,9 +95,9 @@ def white_light(args):
     spectral_seconds, spectral = best_of(args.repeats, lambda: render_white_light(disk, light))
     each_seconds, each = best_of(args.repeats, lambda: in_white_light(WavelengthRenders(one_at_a_time), light))
     difference = max(float(np.abs(spectral.channels[c] - each.channels[c]).max()) for c in ("R", "G", "B"))
-    print(f"white light, disk_compression at 300 N, {args.res}x{args.res}, {len(light.wavelengths)} wavelengths: "
-          f"{spectral_seconds:.3f} s in spectral marches, {each_seconds:.3f} s one render per wavelength "
-          f"({each_seconds / spectral_seconds:.2f}x); sRGB differs by {difference:.1e}")
+    print(f"white light, disk_compression at 300 N, n = {ior:g}, {args.res}x{args.res}, {len(light.wavelengths)} "
+          f"wavelengths: {spectral_seconds:.3f} s in spectral marches, {each_seconds:.3f} s one render per "
+          f"wavelength ({each_seconds / spectral_seconds:.2f}x); sRGB differs by {difference:.1e}")
 
 
 def main():
@@ -154,7 +155,8 @@ def main():
                 costs[(field_name, path, count)] = cost
                 print(f"{field_name:9s} {path:7s} {count:5d} {seconds:11.4f} {alone_seconds:12.4f} "
                       f"{per_wave:16.3e} {cost:9.2f} {alone_seconds / seconds:7.2f}x {error:10.1e}", flush=True)
-    white_light(args)
+    for ior in (1.0, 1.55):
+        white_light(args, ior)
     if 3 in args.lanes and 1 in args.lanes:
         for field_name in fields:
             print(f"{field_name}: 3 wavelengths in one march cost {costs[(field_name, 'render', 3)]:.2f} (render) "

@@ -22,8 +22,8 @@ from .physics.bands import BandSet
 from .physics.colour import Spectrum
 from .physics.polariscope import Polariscope
 from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
-from .tracer import SCENE_VIEW, View
-from .tracer.film import GUARDED_CHANNELS
+from .tracer import SCENE_VIEW, LaneChannels, View
+from .tracer.film import GUARDED_CHANNELS, JONES_CHANNELS
 from .version import __version__
 
 # Largest fringe order a render keeps. A uniform 6 mm slab renders within 7e-4 of its closed form up to
@@ -198,7 +198,7 @@ def render_bands(scene: mi.Scene, bands: BandSet, spp: int | None = None, seed: 
     sums of its wavelengths' renders (:func:`render_wavelengths`). ``path.length``, ``fringe.order`` and the
     aliasing report are the shortest wavelength's (the densest fringes); ``Y`` is the first band's."""
     renders = render_wavelengths(scene, bands.wavelengths, spp, seed, field, polariscope, load_scale,
-                                 measurements=True)
+                                 LaneChannels.MEASUREMENTS)
     images, first, last, said, seconds = _wavelength_images(renders, bands.wavelengths, progress, "bands")
     names = ("Y",) + tuple(MEASUREMENTS)
     channels = {name: first.channels[name] for name in GUARDED_CHANNELS}
@@ -207,6 +207,15 @@ def render_bands(scene: mi.Scene, bands: BandSet, spp: int | None = None, seed: 
     channels["Y"] = channels[bands.names[0]]
     metadata = {**last.metadata, "mi_nest.bands": bands.describe()}
     return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said, aliasing=first.aliasing)
+
+
+def jones_at_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None,
+                         seed: int = 0) -> list[tuple[np.ndarray, ...]]:
+    """Each wavelength's Jones product ``(jones.a, jones.b, jones.c, jones.d)`` images of ``scene`` (its pixel
+    means), from :func:`render_wavelengths`: what a polariscope as built (the rig's twin) is applied to."""
+    renders = render_wavelengths(scene, wavelengths, spp, seed, outputs=LaneChannels.JONES)
+    images = _wavelength_images(renders, wavelengths, False, "Jones")[0]
+    return [tuple(image[name] for name in JONES_CHANNELS) for image in images]
 
 
 def wavelength_channel(wavelength: float) -> str:
@@ -229,18 +238,19 @@ class WavelengthRenders:
 
 def render_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None, seed: int = 0,
                        field: StressField | None = None, polariscope: Polariscope | None = None,
-                       load_scale: float = 1.0, measurements: bool = False) -> WavelengthRenders:
-    """What renders ``scene`` at some of ``wavelengths``: each one's main channel as ``Y`` (and with
-    ``measurements`` its 16 measurements), every phase scaled by ``C(lambda) / lambda`` (:func:`phase_scale`, the
-    media's dispersion) with the polariscope's elements taken as achromatic, the same samples at every
-    wavelength (one seed). Up to :data:`LANES_PER_MARCH` wavelengths share each march (``tracer/spectral.py``:
-    the stress looked up once for all); through refracting surfaces, or with ``rk4``, one render each."""
-    names = tuple(MEASUREMENTS) if measurements else ()
+                       load_scale: float = 1.0, outputs: LaneChannels = LaneChannels.INTENSITY) -> WavelengthRenders:
+    """What renders ``scene`` at some of ``wavelengths``: each one's main channel as ``Y`` and its ``outputs``
+    (none, its 16 measurements, or its Jones product ``jones.a`` ...), every phase scaled by
+    ``C(lambda) / lambda`` (:func:`phase_scale`, the media's dispersion) with the polariscope's elements taken as
+    achromatic, the same samples at every wavelength (one seed). Up to :data:`LANES_PER_MARCH` wavelengths share
+    each march (``tracer/spectral.py``: the stress looked up once for all, refracted paths followed once for all);
+    with ``rk4``, one render each."""
+    names = outputs.value
 
     def in_one_march(group: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
         lanes = tuple((f"lane.{index}", phase_scale(scene, load_scale, w)) for index, w in enumerate(group))
         result = render(scene, spp=spp, seed=seed, field=field,
-                        view=View(polariscope, 1.0, lanes, lane_measurements=measurements))
+                        view=View(polariscope, 1.0, lanes, outputs))
         return [{"Y": result.channels[lane], **{n: result.channels[f"{lane}.{n}"] for n in names}}
                 for lane, _ in lanes], result
 
@@ -249,7 +259,7 @@ def render_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None, see
                         view=View(polariscope, phase_scale(scene, load_scale, group[0])))
         return [{n: result.channels[n] for n in ("Y",) + names}], result
 
-    if photoelastic_integrator(scene).tracer.marches_spectra(scene, scene_sensor(scene)):
+    if photoelastic_integrator(scene).tracer.has_spectral_march():
         return WavelengthRenders(in_one_march, LANES_PER_MARCH)
     return WavelengthRenders(one_at_a_time)
 

@@ -116,7 +116,7 @@ class PhotoelasticIntegrator(mi.ad.integrators.common.ADIntegrator):
     and ``render_bands`` pass) marches several wavelengths at once, the stress
     looked up once per step for all (``mi_nest/tracer/spectral.py``): the
     channels above are the first wavelength's, and each wavelength adds its
-    main intensity (and, with ``lane_measurements``, its 16) after them.
+    main intensity (and, by the view's ``lane_outputs``, its 16 measurements or its Jones product) after them.
 
     .. tabs::
 

@@ -127,8 +127,10 @@ CASES = {
     "spectral": (["--res", "16", "--lanes", "1", "3", "--repeats", "1", "--grid-nodes", "8"],
                  [r"field +path +waves +one march s .*",
                   r"grid +rays +3 +[\d.]+ +[\d.]+ +[\d.e+]+ +[\d.]+ +[\d.]+x +[\d.e+-]+",
-                  r"white light, disk_compression at 300 N, 16x16, 41 wavelengths: [\d.]+ s in spectral marches, "
-                  r"[\d.]+ s one render per wavelength \([\d.]+x\); sRGB differs by .*",
+                  r"white light, disk_compression at 300 N, n = 1, 16x16, 41 wavelengths: [\d.]+ s in spectral "
+                  r"marches, [\d.]+ s one render per wavelength \([\d.]+x\); sRGB differs by .*",
+                  r"white light, disk_compression at 300 N, n = 1.55, 16x16, 41 wavelengths: [\d.]+ s in spectral "
+                  r"marches, [\d.]+ s one render per wavelength \([\d.]+x\); sRGB differs by .*",
                   r"analytic: 3 wavelengths in one march cost [\d.]+ \(render\) and [\d.]+ \(ray batch\) times one "
                   r"wavelength's \(target: well under 3\)"], []),
     "time_to_accuracy": (["--baseline", "{root}", "--output", "{tmp}/tta", "--flags=--fast", "--rotations", "2",

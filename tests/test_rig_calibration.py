@@ -57,7 +57,7 @@ def test_a_birefringent_object_in_view_is_masked_out():
     retarder = su2.retarder(np.where(patch, 1.7, 0.0), np.full((size, size), 0.4))
 
     def with_object(azimuth, elevation):
-        return tuple(np.asarray(x, dtype=np.float64) for x in retarder), 1
+        return [tuple(np.asarray(x, dtype=np.float64) for x in retarder)], 1
 
     exposures = _sweep(with_object, TRUE_OPTICS, resolution=(size, size))
     mask = background_mask(exposures)

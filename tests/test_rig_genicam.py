@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mi_nest.cli import main
-from mi_nest.dataset.camera import CameraModel, demosaic, mosaic_mask
+from mi_nest.dataset.camera import CameraModel, demosaic, mosaic_mask, raw_frame
+from mi_nest.physics.bands import narrow_bands
 from mi_nest.physics.polariscope import ANALYZERS
 from mi_nest.rig.config import RigConfigError, parse
 
@@ -35,8 +36,38 @@ def test_a_raw_frame_is_split_by_the_imx250mzr_cell():
     simulated = CameraModel(mosaic=True).capture({f"a.{a}": image for a, image in images.items()}, 0)
     for analyser in images:
         np.testing.assert_allclose(simulated[f"a.{analyser}"], split[analyser], atol=1e-6)
-    with pytest.raises(ValueError, match="even size"):
+    with pytest.raises(ValueError, match="multiples of 2"):
         demosaic(np.zeros((5, 4)))
+
+
+def test_a_colour_raw_frame_is_split_by_polariser_cell_and_colour_filter():
+    """The IMX250MYR: one colour filter over each 2x2 polariser cell, the cells in a Bayer pattern. A frame made
+    of smooth images comes back exact inside (bilinear over every 4th pixel), as the camera model's mosaic does."""
+    colours = ["blue", "green", "red"]
+    images = {a: np.stack([image * (1 + 0.1 * k) for k in range(3)]) for a, image in _smooth_images((24, 32)).items()}
+    raw = raw_frame(images, colours)
+    assert raw[0, 0] == images[90][2, 0, 0] and raw[0, 2] == images[90][1, 0, 2] and raw[2, 2] == images[90][0, 2, 2]
+    split = demosaic(raw, colours)
+    for analyser, image in images.items():
+        assert split[analyser].shape == (3, 24, 32)
+        np.testing.assert_allclose(split[analyser][:, 4:-4, 4:-4], image[:, 4:-4, 4:-4], atol=1e-12)
+    bands = narrow_bands([450.0, 532.0, 650.0])
+    simulated = CameraModel(mosaic=True).capture({f"{band}.analyzer.{a}": image[k] for a, image in images.items()
+                                                 for k, band in enumerate(bands.names)}, 0, bands)
+    for analyser in images:
+        for k, band in enumerate(bands.names):
+            np.testing.assert_allclose(simulated[f"{band}.analyzer.{analyser}"], split[analyser][k], atol=1e-6)
+    with pytest.raises(ValueError, match="multiples of 4"):
+        demosaic(np.zeros((6, 8)), colours)
+
+
+def test_a_colour_genicam_camera_reads_raw_bayer_frames():
+    camera = {**GENICAM_RIG["camera"], "bands": "rgb"}
+    assert parse({**GENICAM_RIG, "camera": camera}).camera.raw_format == "BayerRG12"
+    assert parse(GENICAM_RIG).camera.raw_format == "Mono12"
+    assert parse({**GENICAM_RIG, "camera": {**camera, "pixel_format": "BayerRG16"}}).camera.raw_format == "BayerRG16"
+    with pytest.raises(RigConfigError, match="red, green and blue filters"):
+        parse({**GENICAM_RIG, "camera": {**camera, "bands": "532"}})
 
 
 def test_a_genicam_rig_file_is_read_and_checked():

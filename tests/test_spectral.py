@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 import mi_nest
-from mi_nest.render import View, phase_scale, render_white_light
+from mi_nest.render import View, jones_at_wavelengths, phase_scale, render_white_light
 from mi_nest.physics import MEASUREMENTS
 from mi_nest.physics.colour import white_led
-from mi_nest.tracer import PathKind, Tracer, TracerConfig
-from mi_nest.tracer.film import CHANNELS
+from mi_nest.tracer import LaneChannels, PathKind, Tracer, TracerConfig
+from mi_nest.tracer.film import CHANNELS, JONES_CHANNELS
 from mi_nest.tracer.guards import SceneSetupError
 from scenes import box, medium, scene
 
@@ -55,6 +55,22 @@ def test_a_spectral_ray_batch_holds_each_wavelength_s_jones_product():
         np.testing.assert_allclose(np.array(lane), np.array(alone), atol=2e-5)
 
 
+def test_each_lane_gives_its_jones_product_for_a_polariscope_as_built():
+    """``LaneChannels.JONES``: each wavelength's Jones product, what the rig's twin applies its own optics to; equal
+    to the monochromatic render's at that wavelength, and to what ``jones_at_wavelengths`` returns."""
+    loaded = mi_nest.load_scene("stacked_disks", res=16, spp=1)
+    lanes = _lanes(loaded)
+    spectral = mi_nest.render(loaded, view=View(lanes=lanes, lane_outputs=LaneChannels.JONES)).channels
+    assert f"{lanes[0][0]}.jones.d" in spectral and f"{lanes[0][0]}.pol.0.0.0" not in spectral
+    listed = jones_at_wavelengths(loaded, WAVELENGTHS)
+    for (name, scale), jones in zip(lanes, listed):
+        alone = mi_nest.render(loaded, view=View(phase_scale=scale)).channels
+        for k, channel in enumerate(JONES_CHANNELS):
+            np.testing.assert_allclose(spectral[f"{name}.{channel}"], alone[channel], atol=5e-4)
+            np.testing.assert_array_equal(jones[k], spectral[f"{name}.{channel}"])
+    assert np.abs(listed[0][1] - listed[2][1]).max() > 0.1      # the wavelengths differ
+
+
 def test_a_white_light_render_takes_one_march_per_sixteen_wavelengths(monkeypatch):
     """41 wavelengths in three marches of 14 (the last padded), the colours those of one render per wavelength."""
     import importlib
@@ -92,20 +108,36 @@ def test_rk4_marches_one_wavelength_at_a_time():
     loaded.integrator().configure(method="rk4")
     with pytest.raises(ValueError, match="'rk4' marches one wavelength at a time; .* use 'product'"):
         mi_nest.render(loaded, view=View(lanes=_lanes(loaded)))
-    assert not loaded.integrator().tracer.marches_spectra(loaded)
+    assert not loaded.integrator().tracer.has_spectral_march()
     result = render_white_light(loaded, white_led(step=50.0))      # one render per wavelength instead
     assert np.isfinite(result.channels["R"]).all()
 
 
-def test_refracting_surfaces_march_one_wavelength_at_a_time():
-    slab = box((20, 20, 4), interior=medium(xx=3.0))
-    slab["bsdf"] = {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}
-    loaded = scene([slab], res=2, max_bounces=0)
-    with pytest.raises(SceneSetupError, match="several wavelengths through refracting surfaces"):
-        mi_nest.render(loaded, view=View(lanes=_lanes(loaded)))
-    assert not loaded.integrator().tracer.marches_spectra(loaded)
-    result = render_white_light(loaded, white_led(step=50.0))
-    assert np.isfinite(result.channels["R"]).all()
+@pytest.mark.parametrize("bounces", [0, 2])
+def test_a_spectral_render_follows_refracted_paths_at_every_wavelength(bounces):
+    """The disk at n = 1.55 in air, seen obliquely (rays bend at its faces, Fresnel transmission and, with
+    bounces, sampled ghost paths): each lane is the monochromatic render at its wavelength, its 16 measurements
+    and Jones product included; a ray batch at several wavelengths through the surfaces is refused."""
+    from mi_nest.dataset.schedule import Rotation, camera_to_world
+    from mi_nest.scene import pose, reference_pose
+    loaded = mi_nest.load_scene("disk_compression", res=24, spp=1, ior=1.55, load=300, contact_width=4)
+    loaded.integrator().configure(max_bounces=bounces)
+    pose(loaded, camera_to_world(reference_pose(loaded), Rotation(0, 35.0, 20.0, "train"), [0.0, 0.0, 0.0]))
+    assert Tracer.refracts(loaded)
+    lanes = _lanes(loaded)
+    for outputs in (LaneChannels.MEASUREMENTS, LaneChannels.JONES):
+        spectral = mi_nest.render(loaded, view=View(lanes=lanes, lane_outputs=outputs)).channels
+        for name, scale in lanes:
+            alone = mi_nest.render(loaded, view=View(phase_scale=scale)).channels
+            np.testing.assert_allclose(spectral[name], alone["Y"], atol=5e-4)
+            for channel in outputs.value:
+                np.testing.assert_allclose(spectral[f"{name}.{channel}"], alone[channel], atol=5e-4, err_msg=channel)
+    first, last = spectral[f"{lanes[0][0]}"], spectral[f"{lanes[-1][0]}"]
+    assert np.abs(first - last).max() > 0.1 and np.ptp(spectral["path.length"]) > 1.0
+    sensor = loaded.sensors()[0]
+    rays, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), mi.Point2f(0.5))
+    with pytest.raises(SceneSetupError, match="a ray batch at several wavelengths through refracting surfaces"):
+        loaded.integrator().tracer.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0), view=View(lanes=lanes))
 
 
 @pytest.mark.parametrize("lanes, message", [

@@ -7,7 +7,7 @@ resumed simulation writes the same files as an uninterrupted one.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Optional
+from typing import Optional, Sequence
 
 import numpy as np
 from scipy.ndimage import convolve
@@ -85,6 +85,12 @@ def bayer_sites(bands: BandSet) -> dict[str, str]:
     return dict(zip(shortest_first, ("blue", "green", "red")))
 
 
+def filter_colours(bands: BandSet) -> list[str]:
+    """The colour filter of each band of ``bands``, in order (:func:`bayer_sites`)."""
+    sites = bayer_sites(bands)
+    return [sites[band] for band in bands.names]
+
+
 def mosaic_mask(analyser: int, shape: tuple[int, int], colour: str | None = None) -> np.ndarray:
     """Where the micro-polariser ``analyser`` (degrees) sits in an image of ``shape``; under the ``colour``
     filter only, for a colour sensor (:data:`BAYER`)."""
@@ -131,9 +137,24 @@ def _demosaic(names, stack, sites):
     return np.stack([_interpolated(image, analyser_of(name), _site(name, sites)) for name, image in zip(names, stack)])
 
 
-def demosaic(raw: np.ndarray) -> dict[int, np.ndarray]:
-    """``{analyser: (H, W)}`` from a raw polarisation-camera frame ``(H, W)`` (the cell of :data:`MOSAIC`)."""
+def raw_frame(images: dict[int, np.ndarray], colours: Sequence[str] | None = None) -> np.ndarray:
+    """The raw frame ``(H, W)`` a polarisation camera records of ``{analyser: (H, W)}`` images: each pixel its own
+    micro-polariser's (:data:`MOSAIC`). A colour camera's images are ``(bands, H, W)``, band ``k`` seen through the
+    colour filter ``colours[k]`` (:data:`BAYER`)."""
+    return sum(np.where(mosaic_mask(analyser, image.shape[-2:], colour), band, 0.0)
+               for analyser, image in images.items()
+               for colour, band in (zip(colours, image) if colours is not None else [(None, image)]))
+
+
+def demosaic(raw: np.ndarray, colours: Sequence[str] | None = None) -> dict[int, np.ndarray]:
+    """``{analyser: (H, W)}`` from a raw polarisation-camera frame ``(H, W)`` (the cell of :data:`MOSAIC`); a
+    colour camera's ``{analyser: (len(colours), H, W)}``, one image per colour filter of :data:`BAYER`."""
     raw = np.asarray(raw, dtype=np.float64)
-    if raw.ndim != 2 or raw.shape[0] % 2 or raw.shape[1] % 2:
-        raise ValueError(f"a raw mosaic frame is a 2D image of even size, got shape {raw.shape}")
-    return {analyser: _interpolated(raw, analyser) for analyser in sorted({a for row in MOSAIC for a in row})}
+    cell = 4 if colours is not None else 2
+    if raw.ndim != 2 or raw.shape[0] % cell or raw.shape[1] % cell:
+        raise ValueError(f"a raw {'colour ' if colours is not None else ''}mosaic frame is a 2D image whose sides "
+                         f"are multiples of {cell}, got shape {raw.shape}")
+    analysers = sorted({a for row in MOSAIC for a in row})
+    if colours is None:
+        return {analyser: _interpolated(raw, analyser) for analyser in analysers}
+    return {analyser: np.stack([_interpolated(raw, analyser, colour) for colour in colours]) for analyser in analysers}

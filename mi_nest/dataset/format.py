@@ -56,10 +56,13 @@ def measurement_of(channel: str) -> str:
 
 
 def band_of(channel: str) -> str | None:
-    """The band of a channel ``<band>.pol...`` (None for any other: a one-band dataset's ``pol...``, or a raw
-    analyser image)."""
-    band, separator, _ = channel.partition(".pol.")
-    return band if separator else None
+    """The band of a channel ``<band>.pol...``, or of a colour camera's analyser image ``<band>.analyzer.<angle>``
+    (None for any other: a one-band dataset's ``pol...``, a monochrome camera's ``analyzer.<angle>``)."""
+    for separator in (".pol.", ".analyzer."):
+        band, found, _ = channel.partition(separator)
+        if found:
+            return band
+    return None
 
 
 def dataset_bands(index: dict) -> BandSet | None:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import binary_fill_holes
 
-from ..physics import su2
+from ..physics import MEASUREMENTS, su2
 from ..physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER, measurement_name,
                                   standard_polariscope)
 
@@ -45,6 +45,15 @@ def dolp_mask(channels: dict[str, np.ndarray], threshold: float = 0.95, fill_hol
     """Object mask of one rotation from its 16 measurements: DoLP below ``threshold``."""
     mask = min_dolp(channels) < threshold
     return binary_fill_holes(mask) if fill_holes else mask
+
+
+def banded_dolp_mask(channels: dict[str, np.ndarray], bands: Sequence[str] | None,
+                     threshold: float = 0.95) -> np.ndarray:
+    """The object mask of a rotation measured in ``bands`` (channels ``<band>.pol...``; None: one band, ``pol...``):
+    free space shows a DoLP of 1 in every band, so the specimen is where any band's drops."""
+    prefixes = [""] if bands is None else [f"{band}." for band in bands]
+    return np.any([dolp_mask({name: channels[prefix + name] for name in MEASUREMENTS}, threshold)
+                   for prefix in prefixes], axis=0)
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, pola
 from ..version import __version__
 from . import format as fmt
 from .camera import CameraModel, bayer_sites
-from .masks import agreement, dolp_mask
+from .masks import agreement, banded_dolp_mask
 from .schedule import RotationSchedule, camera_to_world
 
 
@@ -348,10 +348,8 @@ def _write_rotation(path, rendered, entry, index, settings, aliasing=None):
     measured = settings.camera.capture({name: rendered[name] for name in index["channels"]}, entry["index"],
                                        settings.bands)
     channels = dict(measured)
-    # Free space shows a DoLP of 1 in every band: the specimen is where any band's drops.
-    bands = [""] if settings.bands is None else [f"{band}." for band in settings.bands.names]
-    channels["mask.dolp"] = np.any([dolp_mask({name: measured[band + name] for name in fmt.CHANNELS},
-                                              settings.dolp_threshold) for band in bands], axis=0).astype(np.float32)
+    channels["mask.dolp"] = banded_dolp_mask(measured, None if settings.bands is None else settings.bands.names,
+                                             settings.dolp_threshold).astype(np.float32)
     channels["mask.occupancy"] = (rendered["path.length"] > 0).astype(np.float32)
     metadata = fmt.rotation_header(entry, index)
     if aliasing is not None:

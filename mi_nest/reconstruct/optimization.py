@@ -24,6 +24,7 @@ from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
 from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specimen_media, specimen_shapes
 from ..tracer import Tracer, TracerConfig
+from ..tracer.spectral import spectral_methods
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices
@@ -172,10 +173,13 @@ def _check_bands(dataset: Dataset, config: OptimizeConfig, scene: mi.Scene) -> N
         raise ValueError(f"the Two-step unwraps one wavelength's measurements, and {dataset.directory} holds "
                          f"{len(dataset.bands)} bands ({dataset.bands.describe()}): fit them by their intensities "
                          "(leave out method two-step and the warm start)")
-    if not Tracer(TracerConfig(method=config.model.method)).marches_spectra(scene):
+    if Tracer.refracts(scene):
         raise ValueError("a dataset of several bands is fitted in one march per ray for all wavelengths, along "
                          "straight rays; this scene's surfaces refract (docs/refraction.md): reconstruct it from "
                          "one band, or index-match the scene")
+    if not Tracer(TracerConfig(method=config.model.method)).has_spectral_march():
+        raise ValueError(f"a dataset of several bands is fitted in one march per ray for all wavelengths, which "
+                         f"method '{config.model.method}' cannot do: use {spectral_methods()}")
 
 
 def _check_material(media, dataset):

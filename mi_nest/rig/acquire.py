@@ -39,7 +39,7 @@ import numpy as np
 
 from ..dataset import format as fmt
 from ..dataset.camera import CameraModel
-from ..dataset.masks import dolp_mask
+from ..dataset.masks import banded_dolp_mask
 from ..dataset.schedule import Rotation, camera_to_world
 from ..io.atomic import atomic_path
 from ..io.exr import write_channels
@@ -48,7 +48,7 @@ from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETT
 from . import handedness
 from .calibration import Calibration, Exposure, expected_exposures, fit
 from .clock import Clock
-from .config import KnownSpecimen, RigConfig
+from .config import KnownSpecimen, RigConfig, camera_bands
 from .errors import CommunicationError, RigError
 
 if TYPE_CHECKING:
@@ -162,12 +162,14 @@ class TwinBackend:
                     sim.device(devices.elevation).position() / protocol_aptsim.COUNTS_PER_DEGREE,
                     qwp2.current_position() * 360.0 / qwp2.pulses)
 
+        self.bands = camera_bands(camera)
         if free_space:
             jones_of = twin.free_space
         else:
             jones_of = twin.scene_renderer(camera.scene, camera.defines, camera.resolution, camera.supersample,
-                                           camera.spp)
-        self.camera = twin.SimulatedCamera(jones_of, true_state, camera.optics, camera.model, camera.resolution)
+                                           camera.spp, self.bands)
+        self.camera = twin.SimulatedCamera(jones_of, true_state, camera.optics, camera.model, camera.resolution,
+                                           self.bands)
 
     def set_qwp1(self, reading: float) -> None:
         """The operator's turn of the manual plate, in the twin's world."""
@@ -178,7 +180,7 @@ class TwinBackend:
         from . import twin
         camera = self.config.camera
         self.camera.show(twin.scene_renderer(specimen.scene, specimen.defines, camera.resolution, camera.supersample,
-                                             camera.spp))
+                                             camera.spp, self.bands))
 
     def capture(self, frame_number: int, clock: Clock) -> dict[int, np.ndarray]:
         # the noise of a frame is seeded by its number, so a resumed run captures what an uninterrupted one would
@@ -201,7 +203,7 @@ def scene_index(config: RigConfig) -> dict:
     spp = getattr(camera, "spp", 1)
     scene = load_scene(camera.scene, **defines, spp=spp)
     settings = SimulationSettings(**asdict(config.schedule), spp=spp, camera=getattr(camera, "model", CameraModel()),
-                                  dolp_threshold=config.dolp_threshold)
+                                  dolp_threshold=config.dolp_threshold, bands=camera_bands(camera))
     index = dataset_index(scene, camera.scene, defines, settings)
     if index["resolution"] != [width, height]:
         raise AcquisitionError(f"the rig's scene {camera.scene} renders {index['resolution']}, the rig file asks for "
@@ -327,8 +329,8 @@ def read_journal(path: str | Path) -> tuple[dict, dict[str, dict]]:
 
 
 def _write_frame(path, images, record):
-    """The frame's images and read-back positions, on disk (``atomic_path`` syncs them) before its journal line
-    commits it."""
+    """The frame's images (``(H, W)``, or ``(bands, H, W)`` from a colour camera) and read-back positions, on disk
+    (``atomic_path`` syncs them) before its journal line commits it."""
     with atomic_path(path, ".npz") as tmp:
         np.savez(tmp, **{f"analyzer_{a}": np.asarray(images[a], dtype=np.float32) for a in ANALYZERS},
                  **{name: np.float64(record[name]) for name in ("azimuth", "elevation", "qwp2_measured")})
@@ -531,12 +533,18 @@ class _Acquisition:
                                               self.index["specimen_center"]).round(9).tolist(),
                      measured={name: [r[name] for r in records] for name in ("azimuth", "elevation", "qwp2_measured")})
         if not fmt.rotation_is_whole(self.output, entry, self.index):
+            bands = camera_bands(self.config.camera)
             channels = {}
             for record in records:
                 images = _read_frame(self.output / record["file"])
                 for analyser in ANALYZERS:
-                    channels[measurement_name(record["qwp1"], record["qwp2"], analyser)] = images[analyser]
-            channels["mask.dolp"] = dolp_mask(channels, self.config.dolp_threshold).astype(np.float32)
+                    name = measurement_name(record["qwp1"], record["qwp2"], analyser)
+                    if bands is None:
+                        channels[name] = images[analyser]
+                    else:
+                        channels.update({f"{band}.{name}": image for band, image in zip(bands.names, images[analyser])})
+            channels["mask.dolp"] = banded_dolp_mask(channels, None if bands is None else bands.names,
+                                                     self.config.dolp_threshold).astype(np.float32)
             write_channels(self.output / entry["file"], channels, half=True,
                            metadata={**fmt.rotation_header(entry, self.index), "mi_nest.source": "captured"})
 

@@ -8,6 +8,7 @@ missing keys are errors that name the section and the key.
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -56,6 +57,7 @@ class TwinCamera:
     exposure: float = 0.05               # seconds, spent on the rig's clock
     model: CameraModel = CameraModel()
     optics: Optics = Optics()            # the truth calibration has to find
+    bands: str | None = None             # a colour camera's (camera_bands); None: monochrome
 
     kind = "twin"
 
@@ -74,8 +76,30 @@ class GenICamCamera:
     serial: str | None = None            # which camera, when several are connected
     exposure: float = 0.05               # seconds
     white_level: float = 4095.0          # raw counts of free space between parallel polarisers
+    bands: str | None = None             # a colour polarisation camera's (camera_bands); None: monochrome
+    pixel_format: str | None = None      # the raw frame's GenICam PixelFormat (None: RAW_FORMATS)
 
     kind = "genicam"
+
+    @property
+    def raw_format(self) -> str:
+        return self.pixel_format or RAW_FORMATS[self.bands is not None]
+
+
+# The raw (undemosaicked) pixel format of a monochrome and of a colour polarisation camera (LUCID's names).
+RAW_FORMATS = {False: "Mono12", True: "BayerRG12"}
+
+
+@functools.cache
+def _parsed_bands(text: str):
+    from ..physics.bands import parse_bands
+    return parse_bands(text)
+
+
+def camera_bands(camera: TwinCamera | GenICamCamera):
+    """The :class:`~mi_nest.physics.bands.BandSet` a colour camera records (``[camera] bands``: ``rgb``, wavelengths
+    in nm such as ``450,532,650``, or a CSV of the sensor's curves); None for a monochrome camera."""
+    return None if camera.bands is None else _parsed_bands(camera.bands)
 
 
 # ``[schedule]`` without keys: the paper's 400 rotations.
@@ -202,15 +226,15 @@ def _dataclass_options(default, table, where):
         raise RigConfigError(f"[{where}]: {error}") from error
 
 
-def _camera(table):
+def _camera(table, source):
     kind = table.get("kind")
     if kind == "genicam":
-        return _genicam_camera(table)
+        return _checked_bands(_genicam_camera(table), source, mosaic=True)
     if kind != "twin":
         raise RigConfigError(f"[camera] kind = {kind!r}: 'twin' (the digital twin) or 'genicam' (a real "
                              "polarisation camera through harvesters, an optional extra)")
     _take(table, "camera", required=("kind", "scene"),
-          optional=("defines", "resolution", "supersample", "spp", "exposure", "model", "optics"))
+          optional=("defines", "resolution", "supersample", "spp", "exposure", "model", "optics", "bands"))
     resolution = tuple(table.get("resolution", (32, 32)))
     if len(resolution) != 2 or not all(isinstance(n, int) and n > 0 for n in resolution):
         raise RigConfigError(f"[camera] resolution must be [width, height] in pixels, got {table.get('resolution')}")
@@ -219,16 +243,40 @@ def _camera(table):
             raise RigConfigError(f"[camera] {name} must be a positive integer, got {table[name]!r}")
     if not isinstance(table.get("defines", {}), dict):
         raise RigConfigError(f"[camera.defines] must be a table of the scene's $NAME values, got {table['defines']!r}")
-    return TwinCamera(scene=str(table["scene"]), defines=dict(table.get("defines", {})),
-                      resolution=resolution, supersample=table.get("supersample", 2), spp=table.get("spp", 1),
-                      exposure=_number("camera", "exposure", table.get("exposure", 0.05), above=0),
-                      model=_dataclass_options(CameraModel(), table.get("model", {}), "camera.model"),
-                      optics=_dataclass_options(Optics(), table.get("optics", {}), "camera.optics"))
+    camera = TwinCamera(scene=str(table["scene"]), defines=dict(table.get("defines", {})),
+                        resolution=resolution, supersample=table.get("supersample", 2), spp=table.get("spp", 1),
+                        exposure=_number("camera", "exposure", table.get("exposure", 0.05), above=0),
+                        model=_dataclass_options(CameraModel(), table.get("model", {}), "camera.model"),
+                        optics=_dataclass_options(Optics(), table.get("optics", {}), "camera.optics"),
+                        bands=table.get("bands"))
+    return _checked_bands(camera, source, mosaic=camera.model.mosaic)
+
+
+def _checked_bands(camera, source, mosaic):
+    """``camera`` with its ``bands`` checked (a CSV's path made relative to the rig file): bands that no camera has,
+    or a colour mosaic with other than three, are refused before anything moves."""
+    from ..dataset.camera import bayer_sites
+    from ..physics.bands import BandError
+    text = camera.bands
+    if text is None:
+        return camera
+    if not isinstance(text, str):
+        raise RigConfigError(f"[camera] bands must be a string: 'rgb', wavelengths in nm such as '450,532,650', or a "
+                             f"CSV file of the sensor's curves; got {text!r}")
+    if text.strip().lower().endswith(".csv") and source is not None and not Path(text).is_absolute():
+        camera = replace(camera, bands=str(Path(source).parent / text))
+    try:
+        bands = camera_bands(camera)
+        if mosaic:
+            bayer_sites(bands)
+    except (BandError, ValueError) as error:
+        raise RigConfigError(f"[camera] bands = {text!r}: {error}") from None
+    return camera
 
 
 def _genicam_camera(table):
     _take(table, "camera", required=("kind", "cti", "scene"),
-          optional=("defines", "resolution", "serial", "exposure", "white_level"))
+          optional=("defines", "resolution", "serial", "exposure", "white_level", "bands", "pixel_format"))
     options = {k: v for k, v in table.items() if k != "kind"}
     if "resolution" in options:
         options["resolution"] = tuple(options["resolution"])
@@ -247,7 +295,7 @@ def parse(data: dict, source: str | Path | None = None) -> RigConfig:
     for key in ("azimuth_channel", "elevation_channel"):
         _whole("devices", key, devices.get(key, 1), least=1)
     devices = Devices(**devices)
-    camera = _camera(data["camera"])
+    camera = _camera(data["camera"], source)
     if camera.kind == "twin" and not devices.simulated:
         raise RigConfigError(f"[camera] kind = 'twin' renders what simulated devices report; the devices must be "
                              f"{', '.join(f'{n} = {s}://NAME' for n, s in SIMULATED_SCHEMES.items())}, got "

@@ -31,11 +31,12 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..dataset.camera import demosaic, mosaic_mask
+from ..dataset.camera import demosaic, filter_colours, raw_frame
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from .config import DEFAULT_SPECIMEN_DEFINES, GenICamCamera, KnownSpecimen, RigConfig, TwinCamera, load_calibration
+from .config import (DEFAULT_SPECIMEN_DEFINES, GenICamCamera, KnownSpecimen, RigConfig, TwinCamera, camera_bands,
+                     load_calibration)
 from .errors import RigError
-from .twin import Optics, pixel_means, scene_renderer
+from .twin import Optics, analyser_images, pixel_means, scene_renderer
 
 if TYPE_CHECKING:
     from .calibration import Calibration, Exposure
@@ -76,10 +77,12 @@ class SpecimenModel:
         self.resolution = tuple(camera.resolution)
         # A real polarisation camera always samples through its micro-polariser mosaic; the twin when told to.
         self.mosaic = camera.model.mosaic if camera.kind == "twin" else True
+        self.bands = camera_bands(camera)
+        self.colours = filter_colours(self.bands) if self.bands is not None and self.mosaic else None
         jones_of = scene_renderer(specimen.scene, specimen.defines, self.resolution,
-                                  getattr(camera, "supersample", 1), getattr(camera, "spp", 1))
-        self.q, self.factor = jones_of(*self.pose)
-        _, b, c, d = self.q
+                                  getattr(camera, "supersample", 1), getattr(camera, "spp", 1), self.bands)
+        self.jones, self.factor = jones_of(*self.pose)
+        _, b, c, d = self.jones[0]
         self.inside = pixel_means(b * b + c * c + d * d, self.factor, self.resolution) > INSIDE
         if not self.inside.any():
             raise HandednessError(f"the handedness specimen {specimen.describe()} shows no birefringence in the "
@@ -90,13 +93,10 @@ class SpecimenModel:
         demosaicked as the camera's are."""
         predicted = []
         for qwp1, qwp2 in settings:
-            images = {analyzer: light_level * pixel_means(optics.polariscope(qwp1, qwp2, analyzer).intensity(self.q),
-                                                          self.factor, self.resolution)
-                      for analyzer in ANALYZERS}
+            images = analyser_images(optics, qwp1, qwp2, self.jones, self.factor, self.resolution, self.bands)
             if self.mosaic:
-                images = demosaic(sum(np.where(mosaic_mask(analyzer, image.shape), image, 0.0)
-                                      for analyzer, image in images.items()))
-            predicted.extend(images[analyzer][self.inside] for analyzer in ANALYZERS)
+                images = demosaic(raw_frame(images, self.colours), self.colours)
+            predicted.extend(light_level * images[analyzer][..., self.inside] for analyzer in ANALYZERS)
         return np.stack(predicted)
 
     def require_separation(self, optics: Optics, light_level: float) -> None:
@@ -114,7 +114,7 @@ class SpecimenModel:
 
     def judge(self, calibration: Calibration, exposures: Sequence[Exposure]) -> HandednessCheck:
         """The :class:`HandednessCheck` of ``exposures`` (``calibration.Exposure`` at :data:`SETTINGS`)."""
-        measured = np.stack([exposure.images[analyzer][self.inside]
+        measured = np.stack([exposure.images[analyzer][..., self.inside]
                              for exposure in exposures for analyzer in ANALYZERS])
         settings = [(exposure.qwp1, exposure.qwp2) for exposure in exposures]
         residuals = {name: _rms(self.predict(optics, calibration.light_level, settings) - measured)

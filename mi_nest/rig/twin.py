@@ -21,12 +21,15 @@ import numpy as np
 
 from ..dataset.camera import CameraModel
 from ..physics.backend import Array
+from ..physics.bands import BandSet
 from ..physics.polariscope import ANALYZERS, Polariscope, standard_polariscope
 from ..physics.su2 import identity
 
-# ``jones_of(azimuth, elevation)``: the Jones quaternion ``(a, b, c, d)`` of every point sample in view and the
-# samples per pixel along each axis.
-JonesOf = Callable[[float, float], tuple[Sequence[Array], int]]
+# A Jones quaternion ``(a, b, c, d)`` of every point sample in view.
+Jones = Sequence[Array]
+# ``jones_of(azimuth, elevation)``: the point samples' Jones quaternions at each wavelength a colour camera's bands
+# weigh (one: a monochrome camera, or the same at every wavelength) and the samples per pixel along each axis.
+JonesOf = Callable[[float, float], tuple[Sequence[Jones], int]]
 
 
 @dataclass(frozen=True)
@@ -74,15 +77,19 @@ class SimulatedCamera:
 
     ``rig_state()`` returns the true ``(azimuth, elevation, qwp2)`` in degrees;
     ``qwp1`` is the manual plate's setting, changed by the operator (or a test).
+    A colour camera (``bands``, ``physics.bands``) sees each band through its
+    colour filter: its images are ``(bands, H, W)``.
     """
 
-    def __init__(self, jones_of: JonesOf, rig_state: Callable[[], tuple[float, float, float]], optics: Optics = Optics(),
-                 camera: CameraModel = CameraModel(), resolution: tuple[int, int] = (64, 64)) -> None:
+    def __init__(self, jones_of: JonesOf, rig_state: Callable[[], tuple[float, float, float]],
+                 optics: Optics = Optics(), camera: CameraModel = CameraModel(), resolution: tuple[int, int] = (64, 64),
+                 bands: BandSet | None = None) -> None:
         self.jones_of = jones_of
         self.rig_state = rig_state
         self.optics = optics
         self.camera = camera
         self.resolution = tuple(resolution)
+        self.bands = bands
         self.qwp1 = 45.0
         self.exposures = 0
         self._cached = None
@@ -99,15 +106,38 @@ class SimulatedCamera:
         return self._cached[1]
 
     def capture(self) -> dict[int, np.ndarray]:
-        """``{analyser: (H, W) float32}`` normalised intensities of one exposure at the rig's true state."""
+        """``{analyser: (H, W) float32}`` normalised intensities of one exposure at the rig's true state
+        (``(bands, H, W)`` for a colour camera)."""
         azimuth, elevation, qwp2 = self.rig_state()
-        q, factor = self._jones(azimuth, elevation)
-        images = {f"analyzer.{analyzer}": pixel_means(self.optics.polariscope(self.qwp1, qwp2, analyzer).intensity(q),
-                                                      factor, self.resolution)
-                  for analyzer in ANALYZERS}
-        captured = self.camera.capture(images, self.exposures)
+        jones, factor = self._jones(azimuth, elevation)
+        ideal = analyser_images(self.optics, self.qwp1, qwp2, jones, factor, self.resolution, self.bands)
+        if self.bands is None:
+            captured = self.camera.capture({f"analyzer.{a}": image for a, image in ideal.items()}, self.exposures)
+            images = {int(name.split(".")[1]): image for name, image in captured.items()}
+        else:
+            captured = self.camera.capture({f"{band}.analyzer.{a}": image[k] for a, image in ideal.items()
+                                            for k, band in enumerate(self.bands.names)}, self.exposures, self.bands)
+            images = {a: np.stack([captured[f"{band}.analyzer.{a}"] for band in self.bands.names]) for a in ideal}
         self.exposures += 1
-        return {int(name.split(".")[1]): image for name, image in captured.items()}
+        return images
+
+
+def analyser_images(optics: Optics, qwp1: float, qwp2: float, jones: Sequence[Jones], factor: int,
+                    resolution: tuple[int, int], bands: BandSet | None = None) -> dict[int, np.ndarray]:
+    """``{analyser: (H, W)}`` pixel means of what ``optics`` with its mounts at ``qwp1`` and ``qwp2`` pass of
+    ``jones`` (a :data:`JonesOf`'s, at the bands' wavelengths); for ``bands``, ``(bands, H, W)``: each band's
+    weighted sum over its wavelengths (the polariscope's elements achromatic, as every render takes them)."""
+    images = {}
+    for analyzer in ANALYZERS:
+        scope = optics.polariscope(qwp1, qwp2, analyzer)
+        per_wavelength = np.stack([pixel_means(scope.intensity(q), factor, resolution) for q in jones])
+        if bands is None:
+            images[analyzer] = per_wavelength[0]
+        elif len(jones) == 1:       # the same at every wavelength (free space): each band's weights sum to 1
+            images[analyzer] = np.repeat(per_wavelength, len(bands), axis=0)
+        else:
+            images[analyzer] = bands.combine(per_wavelength)
+    return images
 
 
 def pixel_means(samples: Array, factor: int, resolution: tuple[int, int]) -> np.ndarray:
@@ -117,20 +147,18 @@ def pixel_means(samples: Array, factor: int, resolution: tuple[int, int]) -> np.
     return samples.reshape(height, factor, width, factor).mean(axis=(1, 3))
 
 
-def free_space(azimuth: float, elevation: float) -> tuple[Sequence[Array], int]:
-    """No specimen: the identity everywhere (the calibration captures)."""
-    return identity(np.float64(0.0)), 1
+def free_space(azimuth: float, elevation: float) -> tuple[Sequence[Jones], int]:
+    """No specimen: the identity everywhere and at every wavelength (the calibration captures)."""
+    return (identity(np.float64(0.0)),), 1
 
 
 def scene_renderer(scene_file: str, defines: dict, resolution: tuple[int, int], supersample: int = 2,
-                   spp: int = 1) -> JonesOf:
-    """``jones_of(azimuth, elevation)`` rendering ``scene_file`` at ``supersample`` times ``resolution``.
-
-    Returns the per-sample Jones quaternions ``(a, b, c, d)`` of shape
-    ``(H * s, W * s)`` and the factor ``s``.
-    """
+                   spp: int = 1, bands: BandSet | None = None) -> JonesOf:
+    """``jones_of(azimuth, elevation)`` rendering ``scene_file`` at ``supersample`` times ``resolution``: the
+    per-sample Jones quaternions ``(a, b, c, d)`` of shape ``(H * s, W * s)`` and the factor ``s``, at the
+    scene's wavelength, or at each of ``bands``' (one spectral march per 16 wavelengths)."""
     from ..dataset.schedule import Rotation, camera_to_world
-    from ..render import render
+    from ..render import jones_at_wavelengths, render
     from ..scene import load_scene, pose, reference_pose, specimen_bounds, specimen_shapes
 
     width, _ = resolution
@@ -140,9 +168,13 @@ def scene_renderer(scene_file: str, defines: dict, resolution: tuple[int, int], 
     low, high = specimen_bounds(shapes)
     center = 0.5 * (low + high)
 
-    def jones_of(azimuth: float, elevation: float) -> tuple[Sequence[Array], int]:
+    def jones_of(azimuth: float, elevation: float) -> tuple[Sequence[Jones], int]:
         pose(scene, camera_to_world(reference, Rotation(0, azimuth, elevation, "train"), center))
-        channels = render(scene).channels
-        return tuple(channels[f"jones.{k}"].astype(np.float64) for k in "abcd"), supersample
+        if bands is None:
+            channels = render(scene).channels
+            jones = [tuple(channels[f"jones.{k}"] for k in "abcd")]
+        else:
+            jones = jones_at_wavelengths(scene, bands.wavelengths)
+        return [tuple(x.astype(np.float64) for x in q) for q in jones], supersample
 
     return jones_of

@@ -11,6 +11,6 @@ one object each), ``spectral.py`` (several wavelengths in one march),
 refuses or warns about) and ``parts.py`` (what the plugins register as). The ``photoelastic`` integrator plugin is a thin Mitsuba adapter
 over it; reconstructions and slices use a :class:`Tracer` directly.
 """
-from .tracer import SCENE_VIEW, PathKind, TracedRays, TracePlan, Tracer, TracerConfig, View
+from .tracer import SCENE_VIEW, LaneChannels, PathKind, TracedRays, TracePlan, Tracer, TracerConfig, View
 
-__all__ = ["SCENE_VIEW", "PathKind", "TracedRays", "TracePlan", "Tracer", "TracerConfig", "View"]
+__all__ = ["SCENE_VIEW", "LaneChannels", "PathKind", "TracedRays", "TracePlan", "Tracer", "TracerConfig", "View"]

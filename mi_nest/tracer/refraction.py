@@ -22,7 +22,10 @@ the chosen Fresnel matrix by the choice's probability (the tracer adds the
 ghosts' intensities to the transmitted path's). The stress march runs as
 before on each straight segment inside a specimen. The camera's polariscope elements act in
 its frame; the light's face the camera, so a bent path's matrix is turned at
-the light by the path's geometric rotation (:func:`sheet_rotation`).
+the light by the path's geometric rotation (:func:`sheet_rotation`). A spectral
+march follows one path for all its wavelengths (the indices do not depend on
+the wavelength here) with one path matrix per wavelength; its replay is not
+available (ray batches of several wavelengths run straight only).
 """
 from __future__ import annotations
 
@@ -35,12 +38,14 @@ from mi_nest import occupancy
 from mi_nest.physics import interface, jones, projection, su2
 
 from .segment import Segment, equal_steps
+from .spectral import lane_count, split_lanes
 
 if TYPE_CHECKING:
     from .setup import SceneSetup
 
 class RefractedPath(NamedTuple):
-    """What the refracted walk gives per ray."""
+    """What the refracted walk gives per ray; a spectral march's (``spectral.py``) at each of its wavelengths in
+    ``lanes``, the first of which are ``jones`` and ``stress``."""
     jones: jones.Biquaternion   # the whole path's Jones matrix, interfaces included (light order)
     stress: su2.Quaternion      # the product of the specimens' segments alone
     fringe: tuple               # summed (b, c) of the step generators (the fringe-order channel)
@@ -51,6 +56,7 @@ class RefractedPath(NamedTuple):
     interfaces: mi.UInt32       # interfaces crossed or reflected at
     sheet_rotation: mi.Float    # radians from the carried frame to the light's sheets (sheet_rotation)
     reflections: mi.UInt32      # partial reflections taken (sampled walks only)
+    lanes: tuple                # ((jones, stress) of each wavelength)
 
 
 class Hit(NamedTuple):
@@ -192,8 +198,10 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
     reach = mi.Float(ray.maxt)
     medium = mi.UInt32(0)
     state, fringe = method.trace_start()
-    total = jones.from_quaternion(su2.identity(mi.Float(0)))
-    stress = su2.identity(mi.Float(0))
+    # One path matrix and stress product per wavelength: the path, its interfaces and lookups are shared.
+    lanes = lane_count(method)
+    total = (jones.from_quaternion(su2.identity(mi.Float(0))),) * lanes
+    stress = (su2.identity(mi.Float(0)),) * lanes
     blocked = mi.Bool(False)
     length = mi.Float(0)
     crossings = mi.UInt32(0)
@@ -215,9 +223,7 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         length += dr.select(crossing.marched, crossing.chord, 0.0)
         blocked |= crossing.blocked
         # At an interface, the stress product since the last one joins the path's matrix, then the interface.
-        segment_jones = _where(crossing.bend, method.finish(state), su2.identity(mi.Float(0)))
-        stress = su2.multiply(stress, segment_jones)
-        total = jones.multiply(jones.multiply(total, jones.from_quaternion(segment_jones)), crossing.matrix)
+        total, stress = _joined(total, stress, method.finish(state), crossing.matrix, crossing.bend)
         state = _where(crossing.bend, method.trace_start()[0], state)
         interfaces += dr.select(crossing.bend, 1, 0)
         reflections += dr.select(crossing.partial, 1, 0)
@@ -225,17 +231,15 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
         crossings += 1
         active &= hit & ~blocked
 
-    segment_jones = method.finish(state)
-    stress = su2.multiply(stress, segment_jones)
-    total = jones.multiply(total, jones.from_quaternion(segment_jones))
     # The light's sheets lie in the camera's frame turned straight onto the last direction; the frame carried
     # along the bent path has turned from it by the path's geometric rotation.
     rotation = sheet_rotation(mi.Vector3f(ray.d), d, setup.right, u, v)
-    total = jones.multiply(total, jones.from_quaternion(su2.rotator(rotation)))
+    total, stress = _joined(total, stress, method.finish(state), jones.from_quaternion(su2.rotator(rotation)))
     # Bent past a finite light panel's edge, or sent back towards the camera's side (the panel lies behind the
     # specimens), it brings no light.
     blocked |= setup.misses_panel(origin, d, mi.Vector3f(ray.d)) | (dr.dot(d, mi.Vector3f(ray.d)) <= 0)
-    return RefractedPath(total, stress, fringe, blocked, length, origin, d, interfaces, rotation, reflections)
+    return RefractedPath(total[0], stress[0], fringe, blocked, length, origin, d, interfaces, rotation, reflections,
+                         tuple(zip(total, stress)))
 
 
 @dr.syntax
@@ -279,6 +283,15 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~crossing.blocked
+
+
+def _joined(total: tuple, stress: tuple, finished: tuple, matrix: jones.Biquaternion,
+            where: mi.Bool | bool = True) -> tuple[tuple, tuple]:
+    """Each wavelength's path matrix and stress product (``total``, ``stress``) with the segment marched since the
+    last interface (``finished``: the method's finished state) and then ``matrix`` joined, where ``where`` holds."""
+    segments = [_where(where, q, su2.identity(mi.Float(0))) for q in split_lanes(finished)]
+    return (tuple(jones.multiply(jones.multiply(m, jones.from_quaternion(q)), matrix) for m, q in zip(total, segments)),
+            tuple(su2.multiply(s, q) for s, q in zip(stress, segments)))
 
 
 def _where(condition: mi.Bool, chosen: tuple, other: tuple) -> tuple:

@@ -21,7 +21,7 @@ from mi_nest.fields import StressField
 from mi_nest.physics import MEASUREMENTS, Polariscope, jones, su2
 
 from . import auto, guards, refraction
-from .film import CHANNELS, UNDIFFERENTIATED
+from .film import CHANNELS, JONES_CHANNELS, UNDIFFERENTIATED
 from .methods import Decision, Method
 from .segment import Segment, equal_steps
 from .registry import method_named, require_adjoint, require_replay_through_refraction
@@ -57,17 +57,30 @@ class TracerConfig:
         return method_named(self.method, self.points, self.jitter, self.tolerance)
 
 
+class LaneChannels(enum.Enum):
+    """What each wavelength of a spectral render adds after its main intensity, as ``<lane>.<name>``."""
+    INTENSITY = ()                          # nothing more
+    MEASUREMENTS = tuple(MEASUREMENTS)      # its 16 measurements
+    JONES = JONES_CHANNELS                  # its Jones product (what a polariscope as built is applied to)
+
+    def values(self, q: su2.Quaternion, seen, radiance: mi.Float) -> list[mi.Float]:
+        """This lane's channels from its specimens' product ``q`` and what the polariscope sees of it ``seen`` (the
+        whole path's matrix where surfaces refract)."""
+        if self is LaneChannels.JONES:
+            return list(q)
+        return [radiance * MEASUREMENTS[name].intensity(seen) for name in self.value]
+
+
 @dataclass(frozen=True)
 class View:
     """What a view changes without loading the scene again: a polariscope instead of the scene's (None: the
     scene's), a factor on every phase (a load scale, or a wavelength's ratio) and, for a spectral march
     (``spectral.py``), its wavelengths as ``(channel name, factor on phase_scale)`` pairs: each adds its main
-    intensity as that channel and, with ``lane_measurements``, its 16 measurements as ``<name>.<measurement>``
-    (no lanes: one wavelength)."""
+    intensity as that channel, then ``lane_channels``' as ``<name>.<channel>`` (no lanes: one wavelength)."""
     polariscope: Polariscope | None = None
     phase_scale: float = 1.0
     lanes: tuple[tuple[str, float], ...] = ()
-    lane_measurements: bool = False
+    lane_outputs: LaneChannels = LaneChannels.INTENSITY
 
     def __post_init__(self):
         if not math.isfinite(self.phase_scale):
@@ -83,9 +96,8 @@ class View:
     @property
     def lane_channels(self) -> tuple[str, ...]:
         """The channels the lanes add to a render, in order."""
-        measurements = tuple(MEASUREMENTS) if self.lane_measurements else ()
         return tuple(channel for name, _ in self.lanes
-                     for channel in (name, *(f"{name}.{m}" for m in measurements)))
+                     for channel in (name, *(f"{name}.{c}" for c in self.lane_outputs.value)))
 
 
 SCENE_VIEW = View()
@@ -113,7 +125,7 @@ class TracePlan:
     setup: SceneSetup
     decision: Decision
     lanes: tuple[str, ...] = ()
-    lane_measurements: bool = False
+    lane_outputs: LaneChannels = LaneChannels.INTENSITY
     norm_error: mi.Float | None = None      # a method that is not unitary: how far |J|^2 drifted
 
 
@@ -179,18 +191,17 @@ class Tracer:
         if view.lanes:
             decision = decision._replace(method=spectral(decision.method, tuple(f for _, f in view.lanes)))
         guards.check_steps_per_ray(setup.specimen_diagonal, decision.step_size)
-        return TracePlan(setup, decision, view.lane_channels, view.lane_measurements)
-
-    def marches_spectra(self, scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
-        """Whether several wavelengths can share one march of ``scene``'s rays (:class:`View` ``lanes``):
-        straight paths (no refracting surface) and a method with a spectral march (``spectral.py``)."""
-        refracting = SceneSetup(scene, sensor or scene.sensors()[0], marching=False).refracting
-        return not refracting and self.has_spectral_march()
+        return TracePlan(setup, decision, view.lane_channels, view.lane_outputs)
 
     def has_spectral_march(self) -> bool:
-        """Whether the configured method marches several wavelengths at once (``auto`` chooses one that does);
-        chords that the caller chose (:meth:`trace_chords`) are straight in any scene."""
+        """Whether the configured method marches several wavelengths at once (:class:`View` ``lanes``;
+        ``auto`` chooses one that does): renders and slices in any scene, ray batches along straight rays."""
         return isinstance(self.method, auto.Auto) or can_march_spectra(self.method)
+
+    @staticmethod
+    def refracts(scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
+        """Whether ``scene`` has surfaces that bend the rays (``refraction.py``)."""
+        return SceneSetup(scene, sensor or scene.sensors()[0], marching=False).refracting
 
     def decide(self, scene: mi.Scene, sensor: mi.Sensor, field: StressField | None = None,
                view: View = SCENE_VIEW) -> Decision:
@@ -215,6 +226,9 @@ class Tracer:
             seeds = _ray_seeds(seed, dr.width(rays.o))
             method = plan.decision.method
             if plan.setup.refracting:
+                if plan.lanes:
+                    guards.refuse_refraction(plan.setup, "a ray batch at several wavelengths",
+                                             "renders at several wavelengths are, and ray batches at one")
                 path = self.walk_refracted(scene, rays, plan, mi.Bool(True), seeds)
                 state, kind = tuple(path.jones[0]) + tuple(path.jones[1]), PathKind.REFRACTED
                 if self.config.max_bounces > 0:
@@ -318,11 +332,14 @@ class Tracer:
         seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
         if plan.setup.refracting:
             path = self.walk_refracted(scene, ray, plan, active, seeds)
-            ghost = None
+            ghosts = None
             if self.config.max_bounces > 0:
                 ghost_seeds = mi.UInt32(sampler.next_1d() * 4294967296.0)
-                ghost = _biquaternion(self._ghost_state(scene, ray, plan, ghost_seeds, active))
-            main, aovs = self.outputs(plan, path.stress, path.fringe, path.blocked, path.length, path.jones, ghost)
+                ghost = self._ghost_state(scene, ray, plan, ghost_seeds, active)
+                ghosts = [_biquaternion(ghost[k:k + 8]) for k in range(0, len(ghost), 8)]
+            stress = tuple(x for _, lane in path.lanes for x in lane)
+            main, aovs = self.outputs(plan, stress, path.fringe, path.blocked, path.length,
+                                      [matrix for matrix, _ in path.lanes], ghosts)
             return main, aovs, None
         (state, fringe), blocked, length = self._walk(scene, ray, plan, active, seeds, method.trace_start(),
                                                       method.trace)
@@ -353,34 +370,35 @@ class Tracer:
             state_grad = dr.grad(leaf)
         self.replay(scene, ray, plan, active, seeds, state, state_grad)
 
-    def outputs(self, plan: TracePlan, specimens: su2.Quaternion, fringe: tuple, blocked: mi.Bool,
-                length: mi.Float, path_jones: jones.Biquaternion | None = None,
-                ghost: jones.Biquaternion | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
-        """Main intensity and the AOV channels (``film.CHANNELS``) from the specimens' Jones quaternion (a
-        method's finished state); with ``path_jones`` (a refracted path's whole Jones matrix) the intensities are
-        its, the Jones channels the specimens' own; a ``ghost`` path's (partly reflected, zero where there is
-        none) intensities add to them (incoherent light)."""
+    def outputs(self, plan: TracePlan, specimens: tuple, fringe: tuple, blocked: mi.Bool, length: mi.Float,
+                paths: list[jones.Biquaternion] | None = None,
+                ghosts: list[jones.Biquaternion] | None = None) -> tuple[mi.Spectrum, list[mi.Float]]:
+        """Main intensity and the AOV channels (``film.CHANNELS``, then the lanes') from the specimens' Jones
+        quaternion (a method's finished state; a spectral march's, one per wavelength side by side, the film's
+        channels being the first wavelength's); with ``paths`` (a refracted path's whole Jones matrix, per
+        wavelength) the intensities are theirs, the Jones channels the specimens' own; a ``ghost`` path's
+        (partly reflected, zero where there is none; per wavelength) intensities add to them (incoherent light)."""
         setup = plan.setup
-        lanes = []
-        if plan.lanes:      # a spectral march's: the channels of its first wavelength, each one's main intensity
-            lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in lane))
-                     for lane in split_lanes(specimens)]
-            specimens = lanes[0]
-        q = su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in specimens))
-        matrix = q if path_jones is None else _jones(PathKind.REFRACTED, plan.decision.method,
-                                                     tuple(path_jones[0]) + tuple(path_jones[1]), blocked)
-        if ghost is not None:
-            matrix = jones.Incoherent((matrix, ghost))
-        delta, theta, gamma = su2.characteristic_parameters(q)
         radiance = setup.radiance
+        lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in lane)) for lane in split_lanes(specimens)]
+
+        def seen(k: int):
+            """What the polariscope sees of wavelength ``k``."""
+            if paths is None:
+                return lanes[k]
+            matrix = _jones(PathKind.REFRACTED, plan.decision.method, tuple(paths[k][0]) + tuple(paths[k][1]), blocked)
+            return matrix if ghosts is None else jones.Incoherent((matrix, ghosts[k]))
+
+        q, matrix = lanes[0], seen(0)
+        delta, theta, gamma = su2.characteristic_parameters(q)
         aovs = list(q) + [delta, theta, gamma]
         aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
-        for lane in lanes:
-            aovs.append(radiance * setup.polariscope.intensity(lane))
-            if plan.lane_measurements:
-                aovs += [radiance * scope.intensity(lane) for scope in MEASUREMENTS.values()]
+        if plan.lanes:
+            for k, lane in enumerate(lanes):
+                aovs.append(radiance * setup.polariscope.intensity(seen(k)))
+                aovs += plan.lane_outputs.values(lane, seen(k), radiance)
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):
@@ -390,18 +408,17 @@ class Tracer:
     def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool,
                        seeds: mi.UInt32, bounces: int = 0) -> refraction.RefractedPath:
         """The walk where surfaces refract (``refraction.py``)."""
-        if plan.lanes:
-            guards.refuse_refraction(plan.setup, "a march at several wavelengths")
         return refraction.trace(scene, ray, plan.setup, plan.decision.method, plan.decision.step_size, seeds,
                                 active, self.config.max_crossings, bounces)
 
     def _ghost_state(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, seeds: mi.UInt32,
                      active: mi.Bool = True) -> tuple:
-        """A sampled path of up to ``max_bounces`` partial reflections: its Jones matrix as 8 numbers, zero where
-        it took none (that is the transmitted path, counted on its own) or brings no light."""
+        """A sampled path of up to ``max_bounces`` partial reflections: its Jones matrix as 8 numbers (per
+        wavelength of a spectral march, side by side), zero where it took none (that is the transmitted path,
+        counted on its own) or brings no light."""
         ghost = self.walk_refracted(scene, ray, plan, mi.Bool(active), seeds, self.config.max_bounces)
         dark = ghost.blocked | (ghost.reflections == 0)
-        return tuple(dr.select(dark, 0.0, x) for x in tuple(ghost.jones[0]) + tuple(ghost.jones[1]))
+        return tuple(dr.select(dark, 0.0, x) for matrix, _ in ghost.lanes for x in tuple(matrix[0]) + tuple(matrix[1]))
 
     def replay(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool, seeds: mi.UInt32,
                state: tuple, state_grad: tuple) -> None:
