@@ -302,13 +302,18 @@ def _render(args):
     from .views import open_source
     from .views.novel import render_view
     from .io.exr import require_exr_name
-    from .render import white_light
+    from .render import scene_bands, scene_light, white_light
     source = open_source(args.scene, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png}, args.scene, source)
     require_exr_name(args.output)
+    light = white_light() if args.white_light else None
+    bands = None
+    if light is None and args.wavelength is None:      # the scene's own light and camera
+        bands = scene_bands(source.scene)
+        light = scene_light(source.scene) if bands is None else None
     render_view(source, args.azimuth, args.elevation, _polariscope(args), args.load_scale, args.wavelength,
-                spp=args.spp, seed=args.seed, progress=not args.quiet,
-                light=white_light() if args.white_light else None).write(args.output, args.png)
+                spp=args.spp, seed=args.seed, progress=not args.quiet, light=light,
+                bands=bands).write(args.output, args.png)
 
 
 def _refuse_overwriting_source(outputs, text, source):
@@ -434,7 +439,6 @@ def _bench(args):
 
 def _simulate(args):
     from .dataset import CameraModel, SimulationSettings, simulate
-    from .physics.bands import parse_bands
     from .io.atomic import refuse_overwriting_inputs
     from .scene import scene_inputs
     refuse_overwriting_inputs({"-o": args.output}, scene_inputs(args.scene, **dict(args.defines)))
@@ -443,7 +447,7 @@ def _simulate(args):
     settings = SimulationSettings(azimuths=args.azimuth, elevations=args.elevation, azimuth_range=args.azimuth_range,
                                   elevation_range=args.elevation_range, res=args.res, spp=args.spp,
                                   test_fraction=args.test_fraction, camera=camera, half=not args.float,
-                                  bands=None if args.bands is None else parse_bands(args.bands))
+                                  bands=args.bands)
     report = simulate(args.scene, args.output, settings, defines=args.defines)
     print(report.describe())
     print(f"wrote {Path(args.output).resolve()}")
@@ -585,17 +589,21 @@ def _slice(args):
     from .views.plots import write_slice_maps
     from .io.exr import require_exr_name
     from .physics.polariscope import polariscope_setting
+    from .render import scene_light, white_light
     spec = SliceSpec(Plane.parse(args.plane, args.normal, args.offset), args.thickness,
                      None if args.region is None else Region.parse(args.region), args.res,
                      _polariscope(args) or polariscope_setting(), args.load_scale, args.wavelength)
     source = open_source(args.source, dict(args.defines))
     _refuse_overwriting_source({"-o": args.output, "--png": args.png, "--maps": args.maps}, args.source, source)
     require_exr_name(args.output)
-    if args.white_light:
-        if args.maps:
-            raise ValueError("--maps draws one wavelength's isochromatic order and isoclinic angle: leave out "
-                             "--white-light or --maps")
-        result = slice_render_white_light(source.scene, spec, source.field)
+    if args.white_light and args.maps:
+        raise ValueError("--maps draws one wavelength's isochromatic order and isoclinic angle: leave out "
+                         "--white-light or --maps")
+    light = white_light() if args.white_light else None
+    if light is None and not args.maps and args.wavelength is None:     # the scene's own light
+        light = scene_light(source.scene)
+    if light is not None:
+        result = slice_render_white_light(source.scene, spec, source.field, light)
     else:
         result = slice_render(source.scene, spec, source.field)
     result.write(args.output, args.png)

@@ -21,7 +21,8 @@ from .physics import MEASUREMENTS
 from .physics.bands import BandSet
 from .physics.colour import Spectrum
 from .physics.polariscope import Polariscope
-from .scene import SceneError, load_scene, photoelastic_integrator, scene_sensor, specimen_media
+from .scene import (SceneError, load_scene, photoelastic_integrator, polariscope_camera, polariscope_light,
+                    scene_sensor, specimen_media)
 from .tracer import SCENE_VIEW, LaneChannels, View
 from .tracer.film import GUARDED_CHANNELS, JONES_CHANNELS
 from .version import __version__
@@ -168,15 +169,26 @@ def _warn_once_each(caught: list[warnings.WarningMessage]) -> list[str]:
 
 # A white-light render's colour image: sRGB, display-encoded, white-balanced to the light.
 COLOUR_CHANNELS = ("R", "G", "B")
-# nm between the wavelengths of a white-light render or slice: one image each (41 from 380 to 780 nm).
-WHITE_LIGHT_STEP = 10.0
 
 
 def white_light() -> Spectrum:
     """The light white-light renders and slices use unless given another: the white LED panel
-    (``physics.colour.white_led``) every :data:`WHITE_LIGHT_STEP` nm."""
-    from .physics.colour import white_led
-    return white_led(step=WHITE_LIGHT_STEP)
+    (``physics.colour.white_led``) every ``WHITE_LIGHT_STEP`` nm."""
+    from .physics.colour import LIGHTS
+    return LIGHTS["white_led"]()
+
+
+def scene_light(scene: mi.Scene) -> Spectrum | None:
+    """The light panel's spectrum (``polariscope_light``'s ``spectrum``); None: one wavelength, the media's."""
+    return polariscope_light(scene).spectrum
+
+
+def scene_bands(scene: mi.Scene) -> BandSet | None:
+    """The camera's colour bands (``polariscope``'s ``bands``) under the panel's light (the white LED when the
+    panel names none); None for a monochrome camera."""
+    from .physics.bands import parse_bands
+    text = polariscope_camera(scene).bands
+    return None if text is None else parse_bands(text, scene_light(scene))
 
 
 def render_white_light(scene: mi.Scene, light: Spectrum | None = None, spp: int | None = None, seed: int = 0,

@@ -107,10 +107,14 @@ def scene_origin(scene: mi.Scene) -> tuple[Path, dict] | None:
     return origin[1], dict(origin[2])
 
 
+# The plugins' properties that may name a file: meshes and stress files, a light's spectrum, a camera's curves.
+NAMED_FILES = ("filename", "spectrum", "bands")
+
+
 def scene_inputs(path: str | Path, **defaults) -> list[Path]:
     """The files that loading the scene ``path`` with ``defaults`` reads: the scene file, the files it includes
-    and those its plugins name (meshes, stress files), resolved as loading resolves them. What an output must
-    not overwrite, and what a dataset's record of its scene's content covers."""
+    and those its plugins name (meshes, stress files, spectra and camera curves), resolved as loading resolves
+    them. What an output must not overwrite, and what a dataset's record of its scene's content covers."""
     path = scene_file(path)
     config = mi.parser.ParserConfig(mi.variant())
     with _resolving_beside(path) as resolver:
@@ -118,7 +122,8 @@ def scene_inputs(path: str | Path, **defaults) -> list[Path]:
             state = mi.parser.parse_file(config, str(path), **{k: str(v) for k, v in defaults.items()})
         except Exception as error:
             raise SceneError(f"{path}: {_without_traceback(str(error))}") from error
-        named = [resolver.resolve(str(node.props["filename"])) for node in state.nodes if "filename" in node.props]
+        named = [resolver.resolve(str(node.props[key])) for node in state.nodes for key in NAMED_FILES
+                 if key in node.props and (key == "filename" or str(node.props[key]).lower().endswith(".csv"))]
     files = [Path(str(name)) for name in [*state.files, *named]]
     return list(dict.fromkeys(file.resolve() for file in files if file.is_file()))
 

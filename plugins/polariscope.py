@@ -4,12 +4,16 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeCameraPart
 
+from mi_nest.physics.bands import parse_bands
 from mi_nest.physics.polariscope import standard_polariscope
 
 from .properties import angle_property, optics_property
+from .stress import resolve_path
 
 _PROJECTIONS = ("orthographic", "perspective")
-_OWN_PROPERTIES = ("projection", "analyzer", "qwp", "optics")
+_OWN_PROPERTIES = ("projection", "analyzer", "qwp", "optics", "bands")
+# A camera's ``bands`` for one channel (no colour filters).
+MONOCHROME = "monochrome"
 
 
 class PolariscopeCamera(mi.Sensor):
@@ -45,6 +49,16 @@ class PolariscopeCamera(mi.Sensor):
          ``polariscope_light``'s ``optics`` (e.g. ``"compensator 45 360 0.25;
          polarizer 0"``); empty for none. (Default: none)
 
+     * - bands
+       - |string|
+       - A colour camera's bands: ``rgb`` (an RGB sensor's curves,
+         docs/datasets.md), wavelengths in nm (``450,532,650``: narrow
+         filters) or a CSV file of the sensor's curves, seen under the light
+         panel's ``spectrum`` (the white LED when it names none);
+         ``monochrome`` for one channel. ``mi-nest render`` then gives each
+         band's image and its 16 measurements, and ``mi-nest simulate`` a
+         dataset in those bands. (Default: monochrome)
+
     The camera half of the polariscope. With the ``polariscope_light`` emitter it
     defines the main channel of the ``photoelastic`` integrator.
 
@@ -74,6 +88,7 @@ class PolariscopeCamera(mi.Sensor):
         if self.optics is None:
             self.optics = standard_polariscope(output_qwp=angle_property(props, "qwp", None),
                                                analyzer=angle_property(props, "analyzer", 0.0)).camera
+        self.bands = _bands(props)
         camera = {key: props[key] for key in props.keys()
                   if key not in _OWN_PROPERTIES and not isinstance(props[key], (mi.Film, mi.Sampler))}
         camera.update(type=projection, film=self.film(), sampler=self.sampler())
@@ -92,7 +107,22 @@ class PolariscopeCamera(mi.Sensor):
 
     def to_string(self) -> str:
         optics = "; ".join(element.describe() for element in self.optics)
-        return f"PolariscopeCamera[projection={self.projection}, optics={optics}]"
+        bands = "" if self.bands is None else f", bands={self.bands}"
+        return f"PolariscopeCamera[projection={self.projection}, optics={optics}{bands}]"
+
+
+def _bands(props) -> str | None:
+    """The ``bands`` text (a CSV's path resolved), checked now under the default light; None: monochrome."""
+    text = str(props.get("bands", MONOCHROME)).strip()
+    if text.lower() == MONOCHROME:
+        return None
+    if text.lower().endswith(".csv"):
+        text = resolve_path(text)
+    try:
+        parse_bands(text)
+    except ValueError as error:
+        raise ValueError(f"polariscope: 'bands': {error}") from None
+    return text
 
 
 PolariscopeCameraPart.register(PolariscopeCamera)

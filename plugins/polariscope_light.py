@@ -6,9 +6,11 @@ import mitsuba as mi
 
 from mi_nest.tracer.parts import PolariscopeLightPart
 
+from mi_nest.physics.colour import MONOCHROMATIC, parse_light
 from mi_nest.physics.polariscope import Polarizer, standard_polariscope
 
 from .properties import angle_property, optics_property
+from .stress import resolve_path
 
 
 class PolariscopeLight(mi.Emitter):
@@ -55,6 +57,17 @@ class PolariscopeLight(mi.Emitter):
        - With ``size``: how far (mm) behind the specimens' centre the panel
          lies, along the camera's axis. (Default: 100)
 
+     * - spectrum
+       - |string|
+       - The panel's light: ``monochromatic`` (one wavelength, the specimens'
+         media's), ``white_led`` (CIE LED-B3, a phosphor white LED) or a CSV
+         file ``wavelength,power`` (relative spectral power, nm; resolved as
+         Mitsuba resolves file names). ``mi-nest render`` and ``slice`` then
+         show it in colour, and a colour camera's bands (the ``polariscope``
+         sensor's ``bands``) are seen under it; the integrator's own render
+         stays at the media's wavelength (docs/physics.md section 9).
+         (Default: monochromatic)
+
     A diffuse panel, as in a transmission polariscope: by default it fills the
     whole background and every camera ray ends on it. With ``size`` it is a
     square of that side facing the camera ``distance`` behind the specimens:
@@ -88,12 +101,22 @@ class PolariscopeLight(mi.Emitter):
             raise ValueError(f"polariscope_light: 'radiance' must be finite and >= 0, got {self.radiance}")
         self.size = _optional_length(props, "size", None)
         self.distance = _optional_length(props, "distance", 100.0)
+        self.spectrum = _spectrum(props)
         self.m_flags = mi.EmitterFlags.Infinite
 
     def to_string(self) -> str:
         panel = "" if self.size is None else f", size={self.size}, distance={self.distance}"
         optics = "; ".join(element.describe() for element in self.optics)
-        return f"PolariscopeLight[optics={optics}, radiance={self.radiance}{panel}]"
+        light = "" if self.spectrum is None else f", spectrum={self.spectrum.name}"
+        return f"PolariscopeLight[optics={optics}, radiance={self.radiance}{panel}{light}]"
+
+
+def _spectrum(props):
+    text = str(props.get("spectrum", MONOCHROMATIC))
+    try:
+        return parse_light(resolve_path(text) if text.strip().lower().endswith(".csv") else text)
+    except ValueError as error:
+        raise ValueError(f"polariscope_light: 'spectrum': {error}") from None
 
 
 def _optional_length(props, name, default):

@@ -27,7 +27,7 @@ from scenes import box, medium, scene
     (lambda: BandSet(("r.g",), [500], [[1.0]]), "without dots"),
     (lambda: BandSet(("r",), [500, 600], [[1.0]]), "weights of shape"),
     (lambda: BandSet(("r",), [500, 600], [[0.0, 0.0]]), "not zero everywhere"),
-    (lambda: parse_bands("red"), "--bands must be 'rgb'"),
+    (lambda: parse_bands("red"), "bands must be 'rgb'"),
     (lambda: parse_bands(","), "at least one wavelength"),
 ])
 def test_bands_no_camera_has_are_refused(make, message):
@@ -202,10 +202,77 @@ def test_the_command_simulates_bands_and_refuses_bad_ones_in_one_line(tmp_path, 
     assert main(["show", str(tmp_path / "ok"), "-o", str(tmp_path / "sheet.png")]) == 0     # the first band's
     assert (tmp_path / "sheet.png").is_file()
     for bands, message in (("650,450", "must increase"), ("-5", "positive numbers of nm"),
-                           ("blue", "--bands must be 'rgb'"), ("450,650 --mosaic", "cannot sit under them")):
+                           ("blue", "bands must be 'rgb'"), ("450,650 --mosaic", "cannot sit under them")):
         capsys.readouterr()
         extra = ["--mosaic"] if "--mosaic" in bands else []
         code = main([*arguments, "-o", str(tmp_path / "refused"), "--bands", bands.split()[0], *extra])
         err = capsys.readouterr().err
         assert code == 2 and message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "refused" / "dataset.json").exists()
+
+
+def test_the_scene_names_its_light_and_its_camera_s_bands(tmp_path, capsys):
+    """``spectrum`` on the light panel and ``bands`` on the camera (the shipped scenes' $spectrum and $bands):
+    ``mi-nest render`` then renders what ``--white-light`` or ``render_bands`` render, ``mi-nest simulate`` records
+    the camera's bands as ``--bands`` does, and ``--wavelength`` goes back to one wavelength."""
+    from mi_nest.cli import main
+    from mi_nest.io.exr import read_channels
+    from mi_nest.render import scene_bands, scene_light
+    small = ["-D", "res=12", "-D", "load=300", "--spp", "1"]
+    assert main(["render", "disk_compression", *small, "-D", "spectrum=white_led", "-o", str(tmp_path / "w.exr")]) == 0
+    assert main(["render", "disk_compression", *small, "--white-light", "-o", str(tmp_path / "flag.exr")]) == 0
+    scene_white, flag = read_channels(tmp_path / "w.exr"), read_channels(tmp_path / "flag.exr")
+    for channel in ("R", "G", "B"):
+        np.testing.assert_array_equal(scene_white[channel], flag[channel])
+    assert main(["render", "disk_compression", *small, "-D", "spectrum=white_led", "--wavelength", "532",
+                 "-o", str(tmp_path / "mono.exr")]) == 0
+    assert "R" not in read_channels(tmp_path / "mono.exr")
+
+    assert main(["render", "disk_compression", *small, "-D", "bands=450,650", "-o", str(tmp_path / "b.exr")]) == 0
+    loaded = mi_nest.load_scene("disk_compression", res=12, spp=1, load=300, bands="450,650")
+    assert scene_light(loaded) is None and scene_bands(loaded).names == ("450", "650")
+    expected = render_bands(loaded, narrow_bands([450.0, 650.0])).channels
+    banded = read_channels(tmp_path / "b.exr")
+    for channel in ("450", "650.pol.45.0.45"):
+        np.testing.assert_allclose(banded[channel], expected[channel], atol=1e-6)
+
+    arguments = ["simulate", "disk_compression", "--azimuth", "2", "--elevation", "1", "--res", "8"]
+    assert main([*arguments, "-D", "bands=450,650", "-o", str(tmp_path / "scene_bands")]) == 0
+    assert main([*arguments, "--bands", "450,650", "-o", str(tmp_path / "option_bands")]) == 0
+    ours, theirs = Dataset(tmp_path / "scene_bands"), Dataset(tmp_path / "option_bands")
+    assert ours.bands.names == theirs.bands.names == ("450", "650") and ours.channels == theirs.channels
+    np.testing.assert_array_equal(ours.measurements(0), theirs.measurements(0))
+    capsys.readouterr()
+    assert main([*arguments, "-D", "spectrum=white_led", "-o", str(tmp_path / "refused")]) == 2
+    err = capsys.readouterr().err
+    assert "the camera has no bands" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "refused" / "dataset.json").exists()
+
+
+def test_a_light_s_spectrum_from_a_file_sets_what_the_camera_s_bands_weigh(tmp_path):
+    """A panel's spectral power from a CSV (a spectrometer's 1 nm rows, sampled every 10 nm): an RGB camera's
+    bands under a light rising towards the red weigh the long wavelengths more than under the white LED; the file
+    is one of the scene's inputs (an output may not overwrite it); bad spectra are refused naming the property."""
+    from mi_nest.physics.colour import read_spectrum
+    from mi_nest.render import scene_bands, scene_light
+    from mi_nest.scene import SceneError, scene_inputs
+    rows = "\n".join(f"{w},{0.2 + (w - 400) / 300}" for w in range(400, 701))
+    path = tmp_path / "red_lamp.csv"
+    path.write_text("# a lamp rising towards the red\nwavelength,power\n" + rows + "\n")
+    light = read_spectrum(path)
+    np.testing.assert_array_equal(light.wavelengths, np.arange(400.0, 701.0, 10.0))
+    loaded = mi_nest.load_scene("disk_compression", res=4, spp=1, spectrum=str(path), bands="rgb")
+    assert scene_light(loaded).name == "red_lamp.csv"
+    under_lamp, under_led = scene_bands(loaded), camera_bands()
+    centres = [bands.weights @ bands.wavelengths for bands in (under_lamp, under_led)]
+    # Every band's centre moves towards the red: red and blue by 6 to 8 nm, green by 1.
+    assert np.all(centres[0] > centres[1]) and np.all((centres[0] - centres[1])[[0, 2]] > 5.0)
+    assert path.resolve() in scene_inputs("disk_compression", spectrum=str(path))
+    (tmp_path / "unsorted.csv").write_text("wavelength,power\n500,1\n450,1\n600,1\n")
+    for spectrum, message in (("sunlight", "'white_led' or a CSV file"),
+                              (str(tmp_path / "unsorted.csv"), "must increase"),
+                              (str(tmp_path / "missing.csv"), "cannot read the spectrum file")):
+        with pytest.raises(SceneError, match=f"polariscope_light: 'spectrum': .*{message}"):
+            mi_nest.load_scene("disk_compression", res=4, spp=1, spectrum=spectrum)
+    with pytest.raises(SceneError, match="polariscope: 'bands': .*must increase"):
+        mi_nest.load_scene("disk_compression", res=4, spp=1, bands="650,450")

@@ -157,3 +157,11 @@ def test_a_slice_in_white_light_shows_the_colour_of_its_slab(tmp_path, capsys):
         assert main([*arguments, *extra, "-o", str(tmp_path / "refused.exr")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "refused.exr").exists() and not (tmp_path / "maps.png").exists()
+    # A scene whose panel is white slices in its light unless a wavelength or the maps are asked for.
+    from mi_nest.io.exr import read_channels
+    plain = [a for a in arguments if a != "--white-light"]
+    assert main([*plain, "-D", "spectrum=white_led", "-o", str(tmp_path / "scene.exr")]) == 0
+    np.testing.assert_array_equal(read_channels(tmp_path / "scene.exr")["R"],
+                                  read_channels(tmp_path / "slice.exr")["R"])
+    assert main([*plain, "-D", "spectrum=white_led", "--wavelength", "600", "-o", str(tmp_path / "one.exr")]) == 0
+    assert "R" not in read_channels(tmp_path / "one.exr")

@@ -141,10 +141,10 @@ def test_the_page_shows_the_render_and_follows_a_drag_and_a_slider(viewer):
 
 
 def test_a_tab_turned_to_white_light_shows_the_colour_render(viewer):
-    """The 'white light (LED)' box in the browser: the next frame at rest is the white-light render of its pose, in
+    """The 'white light (LED-B3)' box in the browser: the next frame at rest is the white-light render of its pose, in
     colour, as the page draws it (8-bit RGB within one level)."""
     with _page(viewer) as page:
-        page.get_by_text("white light (LED)").click()
+        page.get_by_text("white light (LED-B3)").click()
         deadline = time.monotonic() + 90
         shown = expected = None
         while time.monotonic() < deadline:
@@ -288,3 +288,20 @@ def _looking(forward, up):
     w = np.sqrt(max(1e-12, 1 + np.trace(matrix))) / 2
     return np.array([w, (matrix[2, 1] - matrix[1, 2]) / (4 * w), (matrix[0, 2] - matrix[2, 0]) / (4 * w),
                      (matrix[1, 0] - matrix[0, 1]) / (4 * w)])
+
+
+def test_a_scene_with_a_white_panel_opens_in_its_light():
+    """A scene whose light panel names a spectrum opens with the white-light box ticked, and its frames are the
+    white-light render of that light."""
+    from mi_nest.render import render_white_light
+    from mi_nest.scene import pose as pose_scene
+    frames = FrameRenderer("disk_compression", {"load": "300", "spectrum": "white_led"}, 16, 16)
+    viewer = Viewer(frames, port=0)
+    assert viewer.initial_state.white_light and frames.light.name == "LED-B3"
+    frame = frames.render(viewer.initial_state, frames.reference, 16)
+    scene = mi_nest.load_scene("disk_compression", load=300, res=16)
+    pose_scene(scene, frame.to_world)
+    expected = render_white_light(scene, frames.light, spp=1)
+    np.testing.assert_allclose(frame.image[..., 0], expected.channels["R"], atol=1e-6)
+    plain = FrameRenderer("disk_compression", {"load": "300"}, 16, 16)
+    assert not Viewer(plain, port=0).initial_state.white_light

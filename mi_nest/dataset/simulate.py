@@ -15,7 +15,7 @@ import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 from pathlib import Path
 
@@ -27,8 +27,8 @@ from ..io.exr import read_channels, read_metadata, write_channels
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from ..physics.bands import BandSet
-from ..render import available_memory, render, render_bands, render_plan
+from ..physics.bands import BandSet, parse_bands
+from ..render import available_memory, render, render_bands, render_plan, scene_bands, scene_light
 from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
                      scene_file, scene_inputs, scene_sensor, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
@@ -46,15 +46,20 @@ class SimulationSettings(RotationSchedule):
     camera: CameraModel = field(default_factory=CameraModel)
     dolp_threshold: float = 0.95
     half: bool = True                # half-float EXR channels
-    bands: BandSet | None = None     # a colour camera's bands, or narrow ones (physics/bands.py); None: one
+    # A colour camera's bands, or narrow ones (physics/bands.py; a text such as 'rgb' is read under the scene's
+    # light); None: the scene camera's (one band for a monochrome camera).
+    bands: BandSet | str | None = None
 
     def __post_init__(self):
         # Checked before anything is written: 0 must not stand for the scene's own sample count.
         for name in ("azimuths", "elevations", "res", "spp"):
             if getattr(self, name) is not None:
                 whole_number(name, getattr(self, name))
-        if self.bands is not None and self.camera.mosaic:
-            bayer_sites(self.bands)     # three bands under the colour filters, or refused before anything starts
+        if self.bands is not None:
+            # Refused before anything starts: bands no camera has, or other than three under the colour filters.
+            bands = parse_bands(self.bands) if isinstance(self.bands, str) else self.bands
+            if self.camera.mosaic:
+                bayer_sites(bands)
 
 
 @dataclass
@@ -228,10 +233,26 @@ def simulate(scene_file: str | Path, output: str | Path, settings: SimulationSet
         return _simulate(scene_file, Path(output), settings, dict(defines), progress, on_rotation)
 
 
+def _recorded_bands(settings, scene, scene_file):
+    """The bands a simulation records: ``settings.bands`` (a text read under the scene panel's light), else the
+    scene camera's. A monochrome camera under a light of several wavelengths is refused: which wavelengths its one
+    channel weighs is its sensor's curve, which the scene does not give."""
+    light = scene_light(scene)
+    if isinstance(settings.bands, str):
+        return parse_bands(settings.bands, light)
+    bands = settings.bands if settings.bands is not None else scene_bands(scene)
+    if bands is None and light is not None:
+        raise SceneError(f"{scene_file}: the light panel's spectrum is {light.name} and the camera has no bands: give "
+                         "the camera its bands (bands = rgb, narrow ones such as 450,532,650, or its curves; --bands), "
+                         "or leave the light monochromatic")
+    return bands
+
+
 def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     if settings.res is not None:
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
+    settings = replace(settings, bands=_recorded_bands(settings, scene, scene_file))
     render_plan(scene, settings.spp)     # an image that cannot be rendered is refused before anything is written
     _require_room(settings, [int(n) for n in scene_sensor(scene).film().size()], output)
     index = dataset_index(scene, scene_file, defines, settings)

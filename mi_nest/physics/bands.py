@@ -167,19 +167,20 @@ def read_bands(path: str | Path, light: Spectrum | None = None, step: float = BA
     return camera_bands(light, (wavelengths, values[:, 1:], names), step, f"{path.name} under the light")
 
 
-def parse_bands(text: str) -> BandSet:
+def parse_bands(text: str, light: Spectrum | None = None) -> BandSet:
     """``rgb`` (:func:`camera_bands`), a list of wavelengths in nm (``450,532,633``: :func:`narrow_bands`), or a
-    CSV file of a camera's curves (:func:`read_bands`)."""
+    CSV file of a camera's curves (:func:`read_bands`); a camera's curves seen under ``light`` (default: the
+    white LED)."""
     text = text.strip()
     if text.lower() == "rgb":
-        return camera_bands()
+        return camera_bands(light)
     if text.lower().endswith(".csv"):
-        return read_bands(text)
+        return read_bands(text, light)
     try:
         wavelengths = [float(x) for x in text.replace(" ", "").split(",") if x]
     except ValueError:
-        raise BandError(f"--bands must be 'rgb', wavelengths in nm such as 450,532,633, or a CSV file of a "
+        raise BandError(f"bands must be 'rgb', wavelengths in nm such as 450,532,633, or a CSV file of a "
                         f"camera's curves; got '{text}'") from None
     if not wavelengths:
-        raise BandError("--bands needs at least one wavelength (nm), 'rgb' or a CSV file")
+        raise BandError("bands need at least one wavelength (nm), 'rgb' or a CSV file")
     return narrow_bands(wavelengths)

@@ -11,13 +11,20 @@ sRGB) is colour-science's, not written here.
 """
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
 # CIE 015:2018's illuminant for a phosphor-converted white LED of 4103 K, the kind a polariscope's panel uses.
 WHITE_LED = "LED-B3"
+# nm between the wavelengths a white light is rendered at: one image each (41 from 380 to 780 nm).
+WHITE_LIGHT_STEP = 10.0
+# What a light panel's ``spectrum`` may name besides a CSV file: one wavelength (the media's), or the white LED.
+MONOCHROMATIC = "monochromatic"
+LIGHTS = {"white_led": lambda: white_led(step=WHITE_LIGHT_STEP)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +61,42 @@ def checked_wavelengths(values, what: str, error: type[ValueError] = ValueError)
     if np.any(np.diff(wavelengths) <= 0):
         raise error(f"{what} must increase, without repeats: got {wavelengths.tolist()}")
     return wavelengths
+
+
+def read_spectrum(path: str | Path, step: float = WHITE_LIGHT_STEP) -> Spectrum:
+    """A light's relative spectral power from a CSV file: a header ``wavelength,power``, then one row per
+    wavelength (nm, increasing); lines starting with ``#`` are comments. Sampled every ``step`` nm over its span
+    (a spectrometer's 1 nm rows would otherwise each cost a wavelength's render)."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as handle:
+            rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
+    except OSError as error:
+        raise ValueError(f"cannot read the spectrum file {path}: {error.strerror or error}") from None
+    try:
+        values = np.array([[float(x) for x in row] for row in rows[1:]])
+    except ValueError:
+        values = np.empty((0, 0))
+    if len(rows) < 3 or values.ndim != 2 or values.shape[1] != 2:
+        raise ValueError(f"{path}: a spectrum file needs a header 'wavelength,power' and at least two rows of two "
+                         "numbers (nm, relative power)")
+    wavelengths = checked_wavelengths(values[:, 0], f"{path}: the wavelengths")
+    grid = np.arange(wavelengths[0], wavelengths[-1] + 0.5 * step, step)
+    return Spectrum(grid, np.interp(grid, wavelengths, values[:, 1]), path.name)
+
+
+def parse_light(text: str, step: float = WHITE_LIGHT_STEP) -> Spectrum | None:
+    """A light panel's spectrum: ``monochromatic`` (None: one wavelength, the media's), a name of :data:`LIGHTS`, or
+    a CSV file of its spectral power (:func:`read_spectrum`)."""
+    text = text.strip()
+    if text.lower() == MONOCHROMATIC:
+        return None
+    if text.lower() in LIGHTS:
+        return LIGHTS[text.lower()]()
+    if text.lower().endswith(".csv"):
+        return read_spectrum(text, step)
+    raise ValueError(f"a light's spectrum is {MONOCHROMATIC!r}, {', '.join(repr(n) for n in LIGHTS)} or a CSV file "
+                     f"'wavelength,power'; got {text!r}")
 
 
 def monochromatic(wavelength: float = 532.0) -> Spectrum:

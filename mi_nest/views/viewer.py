@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..physics.polariscope import POLARISCOPE_FIELDS, POLARISCOPE_KINDS, polariscope_setting
-from ..render import COLOUR_CHANNELS, white_light
+from ..render import COLOUR_CHANNELS, scene_light, white_light
 from ..scene import SceneError, specimen_bounds, specimen_media, specimen_shapes
 from .slicing import AXES, Plane, SliceError, Slicer, SliceSpec
 from .source import open_source
@@ -47,7 +47,7 @@ class ViewState:
     angle: float = 0.0
     load_scale: float = 1.0
     wavelength: float | None = None
-    white_light: bool = False        # the white LED instead of the wavelength: a colour frame
+    white_light: bool = False        # white light (the scene panel's, or the LED) instead of the wavelength
 
     def scope(self):
         return polariscope_setting(self.polariscope, self.field, self.angle)
@@ -82,6 +82,10 @@ class FrameRenderer:
         self.reference = full.reference
         self.center = full.center
         self.wavelength = specimen_media(full.scene)[0].wavelength
+        # What the white-light box shows: the scene panel's own spectrum, else the white LED (its box then starts
+        # ticked where the scene's panel is white).
+        self.scene_light = scene_light(full.scene)
+        self.light = self.scene_light or white_light()
         self.slicers = {r: Slicer(source.scene) for r, source in self.sources.items()}
 
     def pose_of_camera(self, wxyz: np.ndarray, look_at: np.ndarray, distance: float | None = None) -> np.ndarray:
@@ -129,7 +133,7 @@ class FrameRenderer:
         source = self.sources[resolution]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")      # aliasing at a preview's resolution is expected
-            light = white_light() if state.white_light else None
+            light = self.light if state.white_light else None
             wavelength = None if state.white_light else state.wavelength
             if state.mode == "slice":
                 spec = SliceSpec(Plane(AXES[state.axis], state.offset), state.thickness, resolution=resolution,
@@ -217,7 +221,7 @@ class Viewer:
         low, high = frames.bounds
         self.initial_state = ViewState(offset=round(float(0.5 * (low[2] + high[2])), 1),
                                        thickness=max(round(float(max(high - low) / 20), 1), 0.1),
-                                       wavelength=frames.wavelength)
+                                       wavelength=frames.wavelength, white_light=frames.scene_light is not None)
         self._tabs: dict[int, TabView] = {}
         self._lock = threading.Lock()
         self._wake = threading.Event()
@@ -328,7 +332,8 @@ class Viewer:
             wavelength = gui.add_slider("wavelength (nm)", min=380.0, max=780.0, step=1.0,
                                         initial_value=float(round(state.wavelength)))
             load.on_update(lambda event: changed(load_scale=float(load.value)))
-            white = gui.add_checkbox("white light (LED)", initial_value=state.white_light)
+            white = gui.add_checkbox(f"white light ({self.frames.light.name})", initial_value=state.white_light)
+            wavelength.disabled = state.white_light
             wavelength.on_update(lambda event: changed(wavelength=float(wavelength.value)))
 
             def on_white(event):
