@@ -269,8 +269,10 @@ def test_a_light_s_spectrum_from_a_file_sets_what_the_camera_s_bands_weigh(tmp_p
     assert np.all(centres[0] > centres[1]) and np.all((centres[0] - centres[1])[[0, 2]] > 5.0)
     assert path.resolve() in scene_inputs("disk_compression", spectrum=str(path))
     (tmp_path / "unsorted.csv").write_text("wavelength,power\n500,1\n450,1\n600,1\n")
+    (tmp_path / "two.csv").write_text("wavelength,a,b\n450,1,1\n500,1,1\n600,1,1\n")
     for spectrum, message in (("sunlight", "'white_led' or a CSV file"),
                               (str(tmp_path / "unsorted.csv"), "must increase"),
+                              (str(tmp_path / "two.csv"), "one column of power"),
                               (str(tmp_path / "missing.csv"), "cannot read the spectrum file")):
         with pytest.raises(SceneError, match=f"polariscope_light: 'spectrum': .*{message}"):
             mi_nest.load_scene("disk_compression", res=4, spp=1, spectrum=spectrum)

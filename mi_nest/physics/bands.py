@@ -19,14 +19,13 @@ of wavelengths, the lanes a spectral march advances together
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .colour import Spectrum, checked_wavelengths, white_led
+from .colour import Spectrum, checked_wavelengths, read_curves, white_led
 
 # colour-science's name of the curves :func:`camera_bands` uses by default, and the names its channels get.
 RGB_SENSOR = "Nikon 5100 (NPL)"
@@ -146,25 +145,8 @@ def camera_bands(light: Spectrum | None = None, curves: tuple[np.ndarray, np.nda
 def read_bands(path: str | Path, light: Spectrum | None = None, step: float = BAND_STEP) -> BandSet:
     """A camera's bands from a CSV file: a header ``wavelength,<band>,<band>...`` then one row per wavelength
     (nm, increasing) with each band's relative sensitivity; seen under ``light`` (default: the white LED)."""
-    path = Path(path)
-    try:
-        with open(path, newline="") as handle:
-            rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
-    except OSError as error:
-        raise BandError(f"cannot read the bands file {path}: {error.strerror or error}") from None
-    if len(rows) < 3 or len(rows[0]) < 2:
-        raise BandError(f"{path}: a bands file needs a header 'wavelength,<band>,...' and at least two rows of "
-                        "numbers")
-    names = tuple(name.strip() for name in rows[0][1:])
-    try:
-        values = np.array([[float(x) for x in row] for row in rows[1:]])
-    except ValueError:
-        raise BandError(f"{path}: every row after the header must be numbers (nm, then each band's "
-                        "sensitivity)") from None
-    if values.shape[1] != len(names) + 1:
-        raise BandError(f"{path}: rows must have {len(names) + 1} numbers, as the header names")
-    wavelengths = checked_wavelengths(values[:, 0], f"{path}: the wavelengths", BandError)
-    return camera_bands(light, (wavelengths, values[:, 1:], names), step, f"{path.name} under the light")
+    names, wavelengths, sensitivities = read_curves(path, "bands", "wavelength,<band>,...", BandError)
+    return camera_bands(light, (wavelengths, sensitivities, names), step, f"{Path(path).name} under the light")
 
 
 def parse_bands(text: str, light: Spectrum | None = None) -> BandSet:

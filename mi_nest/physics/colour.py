@@ -63,26 +63,38 @@ def checked_wavelengths(values, what: str, error: type[ValueError] = ValueError)
     return wavelengths
 
 
-def read_spectrum(path: str | Path, step: float = WHITE_LIGHT_STEP) -> Spectrum:
-    """A light's relative spectral power from a CSV file: a header ``wavelength,power``, then one row per
-    wavelength (nm, increasing); lines starting with ``#`` are comments. Sampled every ``step`` nm over its span
-    (a spectrometer's 1 nm rows would otherwise each cost a wavelength's render)."""
+def read_curves(path: str | Path, kind: str, header: str,
+                error: type[ValueError] = ValueError) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """``(names, wavelengths, values (wavelengths, names))`` of a CSV file of curves: a header ``header``
+    (``wavelength,<name>,...``), then one row of numbers per wavelength (nm, increasing); lines starting with
+    ``#`` are comments. ``kind`` names the file in ``error``'s messages."""
     path = Path(path)
     try:
         with open(path, newline="") as handle:
             rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
-    except OSError as error:
-        raise ValueError(f"cannot read the spectrum file {path}: {error.strerror or error}") from None
+    except OSError as error_:
+        raise error(f"cannot read the {kind} file {path}: {error_.strerror or error_}") from None
+    if len(rows) < 3 or len(rows[0]) < 2:
+        raise error(f"{path}: a {kind} file needs a header '{header}' and at least two rows of numbers")
+    names = tuple(name.strip() for name in rows[0][1:])
     try:
         values = np.array([[float(x) for x in row] for row in rows[1:]])
     except ValueError:
-        values = np.empty((0, 0))
-    if len(rows) < 3 or values.ndim != 2 or values.shape[1] != 2:
-        raise ValueError(f"{path}: a spectrum file needs a header 'wavelength,power' and at least two rows of two "
-                         "numbers (nm, relative power)")
-    wavelengths = checked_wavelengths(values[:, 0], f"{path}: the wavelengths")
+        raise error(f"{path}: every row after the header '{header}' must be numbers") from None
+    if values.shape[1] != len(names) + 1:
+        raise error(f"{path}: rows must have {len(names) + 1} numbers, as the header names")
+    return names, checked_wavelengths(values[:, 0], f"{path}: the wavelengths", error), values[:, 1:]
+
+
+def read_spectrum(path: str | Path, step: float = WHITE_LIGHT_STEP) -> Spectrum:
+    """A light's relative spectral power from a CSV file (:func:`read_curves`, header ``wavelength,power``),
+    sampled every ``step`` nm over its span (a spectrometer's 1 nm rows would otherwise each cost a wavelength's
+    render)."""
+    names, wavelengths, power = read_curves(path, "spectrum", "wavelength,power")
+    if len(names) != 1:
+        raise ValueError(f"{path}: a spectrum file has one column of power after the wavelength, got {len(names)}")
     grid = np.arange(wavelengths[0], wavelengths[-1] + 0.5 * step, step)
-    return Spectrum(grid, np.interp(grid, wavelengths, values[:, 1]), path.name)
+    return Spectrum(grid, np.interp(grid, wavelengths, power[:, 0]), Path(path).name)
 
 
 def parse_light(text: str, step: float = WHITE_LIGHT_STEP) -> Spectrum | None:
