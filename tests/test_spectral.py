@@ -8,11 +8,11 @@ import pytest
 
 import mi_nest
 from mi_nest.render import View, jones_at_wavelengths, phase_scale, render_white_light
-from mi_nest.physics import MEASUREMENTS
+from mi_nest.physics import MEASUREMENTS, jones
 from mi_nest.physics.colour import white_led
 from mi_nest.tracer import LaneChannels, PathKind, Tracer, TracerConfig
 from mi_nest.tracer.film import CHANNELS, JONES_CHANNELS
-from mi_nest.tracer.guards import SceneSetupError
+from mi_nest.tracer.setup import SceneSetup
 from scenes import box, medium, scene
 
 WAVELENGTHS = (450.0, 532.0, 650.0)
@@ -63,11 +63,11 @@ def test_each_lane_gives_its_jones_product_for_a_polariscope_as_built():
     spectral = mi_nest.render(loaded, view=View(lanes=lanes, lane_outputs=LaneChannels.JONES)).channels
     assert f"{lanes[0][0]}.jones.d" in spectral and f"{lanes[0][0]}.pol.0.0.0" not in spectral
     listed = jones_at_wavelengths(loaded, WAVELENGTHS)
-    for (name, scale), jones in zip(lanes, listed):
+    for (name, scale), product in zip(lanes, listed):
         alone = mi_nest.render(loaded, view=View(phase_scale=scale)).channels
         for k, channel in enumerate(JONES_CHANNELS):
             np.testing.assert_allclose(spectral[f"{name}.{channel}"], alone[channel], atol=5e-4)
-            np.testing.assert_array_equal(jones[k], spectral[f"{name}.{channel}"])
+            np.testing.assert_array_equal(product[k], spectral[f"{name}.{channel}"])
     assert np.abs(listed[0][1] - listed[2][1]).max() > 0.1      # the wavelengths differ
 
 
@@ -117,13 +117,13 @@ def test_rk4_marches_one_wavelength_at_a_time():
 def test_a_spectral_render_follows_refracted_paths_at_every_wavelength(bounces):
     """The disk at n = 1.55 in air, seen obliquely (rays bend at its faces, Fresnel transmission and, with
     bounces, sampled ghost paths): each lane is the monochromatic render at its wavelength, its 16 measurements
-    and Jones product included; a ray batch at several wavelengths through the surfaces is refused."""
+    and Jones product included, and each lane of a ray batch the monochromatic batch's general Jones matrix."""
     from mi_nest.dataset.schedule import Rotation, camera_to_world
     from mi_nest.scene import pose, reference_pose
     loaded = mi_nest.load_scene("disk_compression", res=24, spp=1, ior=1.55, load=300, contact_width=4)
     loaded.integrator().configure(max_bounces=bounces)
     pose(loaded, camera_to_world(reference_pose(loaded), Rotation(0, 35.0, 20.0, "train"), [0.0, 0.0, 0.0]))
-    assert Tracer.refracts(loaded)
+    assert SceneSetup(loaded, loaded.sensors()[0], marching=False).refracting
     lanes = _lanes(loaded)
     for outputs in (LaneChannels.MEASUREMENTS, LaneChannels.JONES):
         spectral = mi_nest.render(loaded, view=View(lanes=lanes, lane_outputs=outputs)).channels
@@ -135,9 +135,21 @@ def test_a_spectral_render_follows_refracted_paths_at_every_wavelength(bounces):
     first, last = spectral[f"{lanes[0][0]}"], spectral[f"{lanes[-1][0]}"]
     assert np.abs(first - last).max() > 0.1 and np.ptp(spectral["path.length"]) > 1.0
     sensor = loaded.sensors()[0]
-    rays, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), mi.Point2f(0.5))
-    with pytest.raises(SceneSetupError, match="a ray batch at several wavelengths through refracting surfaces"):
-        loaded.integrator().tracer.trace_rays(loaded, rays, mi.Vector3f(1, 0, 0), view=View(lanes=lanes))
+    rays, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(np.random.default_rng(2).uniform(0.2, 0.8, (2, 300))),
+                                mi.Point2f(0.5))
+    right = sensor.world_transform() @ mi.Vector3f(-1, 0, 0)
+    tracer = loaded.integrator().tracer
+    traced = tracer.trace_rays(loaded, rays, right, seed=3, view=View(lanes=lanes))
+    assert traced.kind is (PathKind.GHOSTED if bounces else PathKind.REFRACTED) and traced.lanes == 3
+    for (_, scale), lane in zip(lanes, traced.jones()):
+        alone = tracer.trace_rays(loaded, rays, right, seed=3, view=View(phase_scale=scale)).jones()
+        np.testing.assert_allclose(_numbers(lane), _numbers(alone), atol=2e-5)
+
+
+def _numbers(matrix) -> np.ndarray:
+    """A general Jones matrix, or incoherent paths' matrices, as one array."""
+    return np.concatenate([_numbers(path) for path in matrix]) if isinstance(matrix, jones.Incoherent) else \
+        np.array([x for part in matrix for x in part])
 
 
 @pytest.mark.parametrize("lanes, message", [

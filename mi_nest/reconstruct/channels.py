@@ -9,10 +9,13 @@ wavelength's. An intensity is a quadratic form of the Jones quaternion, ``I = q^
 polariscope's, so a band's is ``<M, S>`` with ``S = sum_l w_l q_l q_l^T`` its coherency (ten numbers per band):
 each channel then costs ten products whatever the band's width, where summing the channels' intensities
 wavelength by wavelength cost one quadratic form per channel and wavelength (five times the iteration time of an
-RGB camera's 28 wavelengths).
+RGB camera's 28 wavelengths). Through refracting surfaces a wavelength's Jones matrix is general (interfaces
+included, and a ghost path's beside it): a band is then its wavelengths' matrices scaled by the square roots of
+their weights and added incoherently, one quadratic form per channel and wavelength.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import mitsuba as mi
@@ -56,13 +59,25 @@ class ChannelModel:
 
     def intensities(self, traced: su2.Quaternion | jones.Biquaternion | list) -> list[mi.Float]:
         """Each channel's intensity from a ray batch's Jones matrices (``TracedRays.jones()``: one per
-        wavelength where the dataset has bands)."""
+        wavelength where the dataset has bands, quaternions along straight rays, general matrices where
+        surfaces refract)."""
         if self.bands is None:
             return [scope.intensity(traced) for scope in self.scopes]
+        if isinstance(traced[0], jones.Incoherent) or len(traced[0]) == 2:     # general matrices (refracted)
+            mixes = [jones.Incoherent(tuple(_scaled(m, math.sqrt(float(w))) for w, m in zip(weights, traced) if w > 0))
+                     for weights in self.bands.weights]
+            return [scope.intensity(mixes[band]) for scope, band in zip(self.scopes, self.channel_bands)]
         coherencies = [tuple(sum(float(w) * q[i] * q[j] for w, q in zip(weights, traced) if w > 0) for i, j in PAIRS)
                        for weights in self.bands.weights]
         return [sum(m * s for m, s in zip(form, coherencies[band]) if m != 0.0)
                 for form, band in zip(self.forms, self.channel_bands)]
+
+
+def _scaled(matrix: jones.Biquaternion | jones.Incoherent, factor: float):
+    """A general Jones matrix (or incoherent paths' matrices) times ``factor``: its intensities times its square."""
+    if isinstance(matrix, jones.Incoherent):
+        return jones.Incoherent(tuple(_scaled(path, factor) for path in matrix))
+    return jones.Biquaternion(tuple(tuple(factor * x for x in part) for part in matrix))
 
 
 # The entries (i, j), i <= j, of a symmetric 4 x 4 matrix.

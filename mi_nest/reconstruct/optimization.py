@@ -23,8 +23,6 @@ from ..fields.base import StressField
 from ..io.lock import locked_directory
 from ..physics.aliasing import NYQUIST
 from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specimen_media, specimen_shapes
-from ..tracer import Tracer, TracerConfig
-from ..tracer.spectral import spectral_methods
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices
@@ -72,7 +70,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     shapes = specimen_shapes(scene)
     media = specimen_media(scene)
     _check_material(media, dataset)
-    _check_bands(dataset, config, scene)
+    _check_bands(dataset, config)
     _warn_if_aliased(dataset)
     dataset.check_measurements(config.optimiser.mask)
     if truth == "scene":
@@ -165,7 +163,7 @@ def _warn_if_aliased(dataset):
         RuntimeWarning, stacklevel=3)
 
 
-def _check_bands(dataset: Dataset, config: OptimizeConfig, scene: mi.Scene) -> None:
+def _check_bands(dataset: Dataset, config: OptimizeConfig) -> None:
     """A dataset of several bands is fitted by its intensities in one spectral march: refuse what cannot."""
     if dataset.bands is None:
         return
@@ -173,13 +171,6 @@ def _check_bands(dataset: Dataset, config: OptimizeConfig, scene: mi.Scene) -> N
         raise ValueError(f"the Two-step unwraps one wavelength's measurements, and {dataset.directory} holds "
                          f"{len(dataset.bands)} bands ({dataset.bands.describe()}): fit them by their intensities "
                          "(leave out method two-step and the warm start)")
-    if Tracer.refracts(scene):
-        raise ValueError("a dataset of several bands is fitted in one march per ray for all wavelengths, along "
-                         "straight rays; this scene's surfaces refract (docs/refraction.md): reconstruct it from "
-                         "one band, or index-match the scene")
-    if not Tracer(TracerConfig(method=config.model.method)).has_spectral_march():
-        raise ValueError(f"a dataset of several bands is fitted in one march per ray for all wavelengths, which "
-                         f"method '{config.model.method}' cannot do: use {spectral_methods()}")
 
 
 def _check_material(media, dataset):

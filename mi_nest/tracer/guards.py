@@ -80,8 +80,9 @@ def check_aliasing(order: np.ndarray, length: np.ndarray) -> aliasing.FringeAlia
     return report
 
 
-def refuse_refraction(setup, what: str, available: str = "renders and ray batches are") -> None:
+def refuse_refraction(setup, what: str) -> None:
     """What cannot follow refracted paths yet is refused, not traced straight by mistake."""
     if setup.refracting:
-        raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet ({available}); "
-                              "drop the specimens' and baths' dielectric BSDFs for index-matched straight rays")
+        raise SceneSetupError(f"photoelastic: {what} through refracting surfaces is not available yet (renders and "
+                              "ray batches are); drop the specimens' and baths' dielectric BSDFs for index-matched "
+                              "straight rays")

@@ -24,8 +24,8 @@ before on each straight segment inside a specimen. The camera's polariscope elem
 its frame; the light's face the camera, so a bent path's matrix is turned at
 the light by the path's geometric rotation (:func:`sheet_rotation`). A spectral
 march follows one path for all its wavelengths (the indices do not depend on
-the wavelength here) with one path matrix per wavelength; its replay is not
-available (ray batches of several wavelengths run straight only).
+the wavelength here) with one path matrix per wavelength, and its replay
+back-propagates each wavelength's adjoint into the one march of the lanes.
 """
 from __future__ import annotations
 
@@ -244,10 +244,10 @@ def trace(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: 
 
 @dr.syntax
 def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size: float, seeds: mi.UInt32,
-           active: mi.Bool, max_crossings: int, total: jones.Biquaternion,
-           grad: jones.Biquaternion, bounces: int = 0) -> None:
-    """The adjoint of :func:`trace`: back-propagate ``grad`` (the adjoint of the path's Jones matrix ``total``)
-    into every segment's field lookups.
+           active: mi.Bool, max_crossings: int, total: list[jones.Biquaternion],
+           grad: list[jones.Biquaternion], bounces: int = 0) -> None:
+    """The adjoint of :func:`trace`: back-propagate ``grad`` (the adjoint of the path's Jones matrix ``total``;
+    both per wavelength of a spectral march) into every segment's field lookups.
 
     The path's matrix is ``M = L Q R``: ``L`` the part on the camera side of a
     segment (grown as the replay walks), ``Q`` the segment's own product (marched
@@ -262,7 +262,7 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
     launch = mi.Point3f(ray.o)
     reach = mi.Float(ray.maxt)
     medium = mi.UInt32(0)
-    before = jones.from_quaternion(su2.identity(mi.Float(0)))
+    before = (jones.from_quaternion(su2.identity(mi.Float(0))),) * len(total)
     crossings = mi.UInt32(0)
     reflections = mi.UInt32(0)
     active = mi.Bool(active)
@@ -275,14 +275,23 @@ def replay(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, method, step_size:
         segment = Segment(crossing.steps, crossing.h, medium, origin, d, setup.frame_coefficients(u, v),
                                mi.sample_tea_32(seeds, crossings)[0])
         product, _ = method.march(segment, setup)
-        with_segment = jones.multiply(before, jones.from_quaternion(product))
-        after = jones.multiply(jones.inverse(with_segment), total)
-        method.replay(method.replay_start(product), jones.unitary_adjoint(before, after, grad), segment, setup)
-        before = jones.multiply(with_segment, crossing.matrix)
+        with_segment, adjoint = _segment_adjoints(before, product, total, grad)
+        method.replay(method.replay_start(product), adjoint, segment, setup)
+        before = tuple(jones.multiply(m, crossing.matrix) for m in with_segment)
         reflections += dr.select(crossing.partial, 1, 0)
         d, u, v, medium, origin, launch, reach, hit = _advance(si, crossing, origin, launch, reach, active)
         crossings += 1
         active &= hit & ~crossing.blocked
+
+
+def _segment_adjoints(before: tuple, product: tuple, total: list, grad: list) -> tuple[tuple, tuple]:
+    """Per wavelength, the path's matrix up to the end of a segment whose product is ``product`` (a chain's state:
+    one quaternion per wavelength) and the adjoint of that product in ``before q after = total``, side by side as
+    the method's replay takes it."""
+    with_segment = tuple(jones.multiply(b, jones.from_quaternion(q)) for b, q in zip(before, split_lanes(product)))
+    adjoints = [jones.unitary_adjoint(b, jones.multiply(jones.inverse(w), t), g)
+                for b, w, t, g in zip(before, with_segment, total, grad)]
+    return with_segment, tuple(x for adjoint in adjoints for x in adjoint)
 
 
 def _joined(total: tuple, stress: tuple, finished: tuple, matrix: jones.Biquaternion,

@@ -82,7 +82,7 @@ class Spectral:
     def __init__(self, inner: Method, factors: tuple[float, ...]):
         self.inner, self.factors = inner, tuple(float(f) for f in factors)
         self.name, self.label, self.unitary = inner.name, inner.label, inner.unitary
-        self.replays_bent_paths = False     # renders follow bent paths at every wavelength; ray batches do not
+        self.replays_bent_paths = inner.replays_bent_paths      # the chains' products, lane by lane
         self._opaque = None
 
     @property
@@ -153,18 +153,13 @@ def spectral(method: Method, factors: tuple[float, ...]) -> Spectral:
     for kind, march in SPECTRAL_MARCHES.items():
         if isinstance(method, kind):
             return march(method, factors)
+    marching = [name for name, cls in METHODS.items() if issubclass(cls, tuple(SPECTRAL_MARCHES)) or cls is Auto]
     raise ValueError(f"photoelastic: '{method.name}' marches one wavelength at a time; for several wavelengths in "
-                     f"one march use {spectral_methods()}")
+                     f"one march use {', '.join(repr(name) for name in marching)}")
 
 
 def can_march_spectra(method: Method) -> bool:
     return isinstance(method, tuple(SPECTRAL_MARCHES))
-
-
-def spectral_methods() -> str:
-    """The names of the methods that march several wavelengths at once, for messages."""
-    return ", ".join(repr(name) for name, cls in METHODS.items()
-                     if issubclass(cls, tuple(SPECTRAL_MARCHES)) or cls is Auto)
 
 
 def lane_count(method: Method) -> int:

@@ -132,7 +132,7 @@ class TracePlan:
 class PathKind(enum.Enum):
     """What a ray batch's state holds."""
     STRAIGHT = "straight"           # the method's state: a Jones quaternion, or linear's summed generator
-    REFRACTED = "refracted"         # the bent path's general Jones matrix, 8 numbers
+    REFRACTED = "refracted"         # the bent path's general Jones matrix, 8 numbers (per wavelength: lanes)
     GHOSTED = "refracted, with a ghost"     # and a sampled partly reflected path's after it: 16 numbers
     SPECTRAL = "straight, at several wavelengths"   # a spectral march's state (spectral.py)
 
@@ -146,12 +146,18 @@ class TracedRays:
     state: tuple
     blocked: mi.Bool
     length: mi.Float
+    lanes: int = 1          # a refracted batch's wavelengths: their matrices (8 or 16 numbers each) side by side
 
     def jones(self, state: tuple | None = None) -> su2.Quaternion | jones.Biquaternion | jones.Incoherent | list:
         """The Jones matrices of ``state`` (default: the traced one; a differentiable copy of it to take a loss's
         gradient), zero where blocked; a ghost's is added incoherently (zero where it has none); a spectral
-        batch's, one quaternion per wavelength."""
-        return _jones(self.kind, self.method, self.state if state is None else state, self.blocked)
+        batch's, one per wavelength."""
+        state = self.state if state is None else state
+        if self.kind is not PathKind.SPECTRAL and self.lanes > 1:
+            width = len(state) // self.lanes
+            return [_jones(self.kind, self.method, state[k:k + width], self.blocked)
+                    for k in range(0, len(state), width)]
+        return _jones(self.kind, self.method, state, self.blocked)
 
 
 def _jones(kind: PathKind, method: Method, state: tuple, blocked: mi.Bool):
@@ -198,11 +204,6 @@ class Tracer:
         ``auto`` chooses one that does): renders and slices in any scene, ray batches along straight rays."""
         return isinstance(self.method, auto.Auto) or can_march_spectra(self.method)
 
-    @staticmethod
-    def refracts(scene: mi.Scene, sensor: mi.Sensor | None = None) -> bool:
-        """Whether ``scene`` has surfaces that bend the rays (``refraction.py``)."""
-        return SceneSetup(scene, sensor or scene.sensors()[0], marching=False).refracting
-
     def decide(self, scene: mi.Scene, sensor: mi.Sensor, field: StressField | None = None,
                view: View = SCENE_VIEW) -> Decision:
         """The method and step a render of ``sensor`` marches with: for several passes over one unchanged scene
@@ -226,16 +227,17 @@ class Tracer:
             seeds = _ray_seeds(seed, dr.width(rays.o))
             method = plan.decision.method
             if plan.setup.refracting:
-                if plan.lanes:
-                    guards.refuse_refraction(plan.setup, "a ray batch at several wavelengths",
-                                             "renders at several wavelengths are, and ray batches at one")
+                # Per wavelength, the path's matrix (8 numbers) and, with a ghost, the ghost's after it.
                 path = self.walk_refracted(scene, rays, plan, mi.Bool(True), seeds)
-                state, kind = tuple(path.jones[0]) + tuple(path.jones[1]), PathKind.REFRACTED
+                lanes = [tuple(matrix[0]) + tuple(matrix[1]) for matrix, _ in path.lanes]
+                kind = PathKind.REFRACTED
                 if self.config.max_bounces > 0:
-                    state += self._ghost_state(scene, rays, plan, _ghost_seeds(seed, dr.width(rays.o)))
+                    ghost = self._ghost_state(scene, rays, plan, _ghost_seeds(seed, dr.width(rays.o)))
+                    lanes = [lane + ghost[8 * k:8 * k + 8] for k, lane in enumerate(lanes)]
                     kind = PathKind.GHOSTED
+                state = tuple(x for lane in lanes for x in lane)
                 dr.eval(state, path.blocked, path.length)
-                return TracedRays(kind, method, state, path.blocked, path.length)
+                return TracedRays(kind, method, state, path.blocked, path.length, len(lanes))
             (state, _), blocked, length = self._walk(scene, rays, plan, mi.Bool(True), seeds, method.trace_start(),
                                                      method.trace)
             blocked = past_panel(plan.setup, rays, blocked)
@@ -261,13 +263,14 @@ class Tracer:
                 total, grad = (tuple(mi.Float(x) for x in values) for values in (traced.state, state_grad))
                 dr.make_opaque(total, grad)
                 count = dr.width(rays.o)
+                width = len(total) // traced.lanes      # each wavelength's numbers
                 paths = [(0, _ray_seeds(seed, count), 0)]
                 if traced.kind is PathKind.GHOSTED:     # the ghost too, with the same choices: the same seeds
                     paths.append((8, _ghost_seeds(seed, count), self.config.max_bounces))
                 for start, seeds, bounces in paths:
                     refraction.replay(scene, rays, plan.setup, method, plan.decision.step_size, seeds,
-                                      mi.Bool(True), self.config.max_crossings, _biquaternion(total[start:start + 8]),
-                                      _biquaternion(grad[start:start + 8]), bounces)
+                                      mi.Bool(True), self.config.max_crossings, _lane_matrices(total, width, start),
+                                      _lane_matrices(grad, width, start), bounces)
                     # Each replay's accumulation into the field's gradients runs before the next is traced: without
                     # it, the second replay's share was lost in about one run in three (Dr.Jit 1.x, LLVM).
                     dr.eval()
@@ -439,6 +442,12 @@ def _ray_seeds(seed, count):
 def _ghost_seeds(seed, count):
     """Per ray, the ghost walk's own stream (apart from the transmitted walk's jitter)."""
     return mi.sample_tea_32(dr.opaque(mi.UInt32, seed), dr.arange(mi.UInt32, count))[1]
+
+
+def _lane_matrices(values: tuple, width: int, start: int) -> list[jones.Biquaternion]:
+    """From a refracted batch's state (``width`` numbers per wavelength), each wavelength's matrix at ``start``
+    (0: the transmitted path's, 8: the ghost's)."""
+    return [_biquaternion(values[k + start:k + start + 8]) for k in range(0, len(values), width)]
 
 
 def _biquaternion(values: tuple) -> jones.Biquaternion:
