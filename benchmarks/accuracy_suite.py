@@ -50,6 +50,7 @@ class Case:
 
 
 DISK_100 = {"load": 100, "contact_width": 4}
+THREE_BANDS = "450,532,650"     # nm: the scenes' $bands, narrow filters
 CASES = [
     Case("disk_100N", "disk_compression", DISK_100, target=0.05, note="the disk target"),
     Case("kitten", "kitten", {"fringe_value": 4500}, target=0.10, note="the kitten target"),
@@ -95,6 +96,16 @@ DIAGNOSTIC_CASES = [
     Case("stacked_disks_relative05", "stacked_disks", {"load": 300, "contact_width": 4},
          flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="stacked_disks",
          note="diagnostic: the stacked disks with the smoothness eased from a field RMS of 0.5 (the default 1)"),
+    # Three narrow bands on 18 x 18 rotations hold as many images as one band on the suite's 32 x 32 (15,552
+    # against 16,384); the one-band control on the same 18 x 18 rotations tells the bands from the views.
+    *(Case(f"{name}_{arm}", scene, {**defines, **({"bands": THREE_BANDS} if arm == "3bands" else {})},
+           rotations=18, target=target,
+           note=f"diagnostic: {what} {'in three narrow bands' if arm == '3bands' else 'in one band'} on 18 x 18 "
+                "rotations")
+      for name, scene, defines, target, what in (
+          ("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, 0.15, "the 600 N disk"),
+          ("stacked_disks", "stacked_disks", {"load": 300, "contact_width": 4}, 0.10, "the stacked disks"))
+      for arm in ("3bands", "1band18")),
 ]
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
