@@ -106,6 +106,10 @@ DIAGNOSTIC_CASES = [
           ("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, 0.15, "the 600 N disk"),
           ("stacked_disks", "stacked_disks", {"load": 300, "contact_width": 4}, 0.10, "the stacked disks"))
       for arm in ("3bands", "1band18")),
+    *(Case(f"stacked_disks_3bands_seed{seed}", "stacked_disks", {"load": 300, "contact_width": 4, "bands": THREE_BANDS},
+           rotations=18, flags=("--option", f"seed={seed}"), target=0.10, same_data_as="stacked_disks_3bands",
+           note=f"diagnostic: the stacked disks in three narrow bands with seed {seed} (their run-to-run spread)")
+      for seed in (1, 2)),
 ]
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
