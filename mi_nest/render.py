@@ -247,6 +247,14 @@ class WavelengthRenders:
     render: Callable[[list[float]], tuple[list[dict[str, np.ndarray]], RenderResult]]
     per_call: int = 1
 
+    @classmethod
+    def of(cls, scene: mi.Scene, in_one_march: Callable, one_at_a_time: Callable) -> WavelengthRenders:
+        """``in_one_march`` (up to :data:`LANES_PER_MARCH` wavelengths a call) where ``scene``'s method marches
+        several wavelengths at once (``tracer/spectral.py``), else ``one_at_a_time``."""
+        if photoelastic_integrator(scene).tracer.has_spectral_march():
+            return cls(in_one_march, LANES_PER_MARCH)
+        return cls(one_at_a_time)
+
 
 def render_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None, seed: int = 0,
                        field: StressField | None = None, polariscope: Polariscope | None = None,
@@ -271,9 +279,7 @@ def render_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None, see
                         view=View(polariscope, phase_scale(scene, load_scale, group[0])))
         return [{n: result.channels[n] for n in ("Y",) + names}], result
 
-    if photoelastic_integrator(scene).tracer.has_spectral_march():
-        return WavelengthRenders(in_one_march, LANES_PER_MARCH)
-    return WavelengthRenders(one_at_a_time)
+    return WavelengthRenders.of(scene, in_one_march, one_at_a_time)
 
 
 def in_white_light(renders: WavelengthRenders, light: Spectrum | None = None, progress: bool = False) -> RenderResult:

@@ -384,24 +384,23 @@ class Tracer:
         setup = plan.setup
         radiance = setup.radiance
         lanes = [su2.Quaternion(tuple(dr.select(blocked, 0.0, x) for x in lane)) for lane in split_lanes(specimens)]
-
-        def seen(k: int):
-            """What the polariscope sees of wavelength ``k``."""
-            if paths is None:
-                return lanes[k]
-            matrix = _jones(PathKind.REFRACTED, plan.decision.method, tuple(paths[k][0]) + tuple(paths[k][1]), blocked)
-            return matrix if ghosts is None else jones.Incoherent((matrix, ghosts[k]))
-
-        q, matrix = lanes[0], seen(0)
+        # What the polariscope sees at each wavelength.
+        seen = lanes
+        if paths is not None:
+            seen = [_jones(PathKind.REFRACTED, plan.decision.method, tuple(path[0]) + tuple(path[1]), blocked)
+                    for path in paths]
+            if ghosts is not None:
+                seen = [jones.Incoherent(pair) for pair in zip(seen, ghosts)]
+        q, matrix = lanes[0], seen[0]
         delta, theta, gamma = su2.characteristic_parameters(q)
         aovs = list(q) + [delta, theta, gamma]
         aovs += [radiance * scope.intensity(matrix) for scope in MEASUREMENTS.values()]
         aovs.append(dr.select(blocked, 0.0, dr.norm(mi.Vector2f(fringe)) / dr.pi))
         aovs.append(length)
         if plan.lanes:
-            for k, lane in enumerate(lanes):
-                aovs.append(radiance * setup.polariscope.intensity(seen(k)))
-                aovs += plan.lane_outputs.values(lane, seen(k), radiance)
+            for lane, lane_seen in zip(lanes, seen):
+                aovs.append(radiance * setup.polariscope.intensity(lane_seen))
+                aovs += plan.lane_outputs.values(lane, lane_seen, radiance)
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
     def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):

@@ -27,8 +27,8 @@ from ..arguments import whole_number
 from ..arrays import device_array
 from ..physics.colour import Spectrum
 from ..physics.polariscope import Polariscope, polariscope_setting
-from ..render import (LANES_PER_MARCH, RenderResult, WavelengthRenders, check_light_and_load, in_white_light,
-                      phase_scale, require_memory)
+from ..render import (RenderResult, WavelengthRenders, check_light_and_load, in_white_light, phase_scale,
+                      require_memory)
 from ..scene import photoelastic_integrator, specimen_bounds, specimen_media, specimen_shapes
 from ..tracer import View
 from ..version import __version__
@@ -330,9 +330,7 @@ class Slicer:
         def one_at_a_time(wavelengths: list[float]) -> tuple[list[dict[str, np.ndarray]], RenderResult]:
             result = self.render(replace(spec, wavelength=wavelengths[0]), field)
             return [{"Y": result.main}], result
-        spectral = photoelastic_integrator(scene).tracer.has_spectral_march()
-        renders = WavelengthRenders(in_one_march, LANES_PER_MARCH) if spectral else WavelengthRenders(one_at_a_time)
-        return in_white_light(renders, light, progress)
+        return in_white_light(WavelengthRenders.of(scene, in_one_march, one_at_a_time), light, progress)
 
     @staticmethod
     def _slab_chords(spec, lines):
