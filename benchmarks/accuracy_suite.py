@@ -110,12 +110,6 @@ DIAGNOSTIC_CASES = [
            rotations=18, flags=("--option", f"seed={seed}"), target=0.10, same_data_as="stacked_disks_3bands",
            note=f"diagnostic: the stacked disks in three narrow bands with seed {seed} (their run-to-run spread)")
       for seed in (1, 2)),
-    # Issue 34's curriculum from sparse to dense fringes: pixels enter the loss by their measured fringe density.
-    *(Case(f"{name}_fringes05", scene, defines, flags=("--option", "fringe_curriculum=0.5"), target=target,
-           same_data_as=name, note=f"diagnostic: {what} with the fringe curriculum over the first half of the run")
-      for name, scene, defines, target, what in (
-          ("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, 0.15, "the 600 N disk"),
-          ("stacked_disks", "stacked_disks", {"load": 300, "contact_width": 4}, 0.10, "the stacked disks"))),
 ]
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}

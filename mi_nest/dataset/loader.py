@@ -20,7 +20,6 @@ import numpy as np
 from ..physics import MEASUREMENTS
 from ..physics.polariscope import Polariscope, Polarizer, Waveplate
 from . import format as fmt
-from .masks import fringe_density
 
 
 
@@ -47,7 +46,6 @@ class _DecodedView:
         # The measurements' images are slices of their stack, not a second copy: a view held twice its size.
         self.images = {**images, **{n: self.measured[..., i] for i, n in enumerate(channels)}}
         self.mask_pixels = {}
-        self._density = None
         # Bytes held: the stacked measurements, the other images (masks) and the pixel indices of the masks
         # asked for so far.
         self.nbytes = self.measured.nbytes + sum(a.nbytes for n, a in images.items() if n not in channels)
@@ -59,13 +57,6 @@ class _DecodedView:
                                       else np.flatnonzero(self.images[mask] > 0.5))
             self.nbytes += self.mask_pixels[mask].nbytes
         return self.mask_pixels[mask]
-
-    def fringe_density(self) -> np.ndarray:
-        """Flat ``(H * W,)``: :func:`masks.fringe_density` of the measurements, computed on first use."""
-        if self._density is None:
-            self._density = fringe_density(self.measured).ravel()
-            self.nbytes += self._density.nbytes
-        return self._density
 
 
 class Dataset:
@@ -198,24 +189,6 @@ class Dataset:
         cached_bytes = sum(v.nbytes for v in self._cache.values())
         while cached_bytes > self._cache_bytes and len(self._cache) > 1:
             cached_bytes -= self._cache.popitem(last=False)[1].nbytes
-
-    def fringe_density(self, positions: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
-        """The measured fringe density (:func:`masks.fringe_density`) at the pixels ``(rows, columns)`` of the
-        rotations at ``positions`` (as :meth:`ray_batch` returns them)."""
-        positions, pixels = np.asarray(positions), np.asarray(rows) * self.resolution[0] + np.asarray(columns)
-        density = np.empty(len(pixels), dtype=np.float32)
-        for position in np.unique(positions):
-            chosen = positions == position
-            density[chosen] = self._decoded(position).fringe_density()[pixels[chosen]]
-        self._keep_within_budget()
-        return density
-
-    def view_fringe_density(self, position: int, mask: str | None = "mask.dolp") -> np.ndarray:
-        """The measured fringe density at the pixels of rotation ``position`` inside ``mask`` (None: all)."""
-        view, pixels = self._pixels_inside(position, mask)
-        density = view.fringe_density()[pixels]
-        self._keep_within_budget()
-        return density
 
     def check_measurements(self, mask: str | None = "mask.dolp") -> None:
         """Decode every view, so that NaN, inf or all-zero measurements raise :class:`DatasetError` now,

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import binary_fill_holes, uniform_filter
+from scipy.ndimage import binary_fill_holes
 
 from ..physics import MEASUREMENTS, su2
 from ..physics.polariscope import (ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS, POLARIZER, measurement_name,
@@ -54,25 +54,6 @@ def banded_dolp_mask(channels: dict[str, np.ndarray], bands: Sequence[str] | Non
     prefixes = [""] if bands is None else [f"{band}." for band in bands]
     return np.any([dolp_mask({name: channels[prefix + name] for name in MEASUREMENTS}, threshold)
                    for prefix in prefixes], axis=0)
-
-
-# Pixels across the window a pixel's fringe density is averaged over: about a fringe period where fringes are
-# dense, so that the zero slope at a fringe's darkest and brightest pixels does not read as sparse fringes.
-DENSITY_WINDOW = 5
-
-
-def fringe_density(measured: np.ndarray) -> np.ndarray:
-    """``(H, W)``: how fast the measurements ``(H, W, C)`` change across the image, in their mean level per pixel:
-    the root mean square slope over :data:`DENSITY_WINDOW` pixels, which grows with the fringes per pixel
-    (``sin^2`` fringes of period ``P`` pixels: about ``2 / P``). It tells sparse fringes from dense ones from the images alone, without
-    their orders, which one wavelength cannot give."""
-    measured = np.asarray(measured, dtype=np.float32)
-    level = float(np.mean(measured))
-    if not level > 0:
-        return np.zeros(measured.shape[:2], dtype=np.float32)
-    down, across = np.gradient(measured / level, axis=(0, 1))
-    squared_slope = np.mean(down ** 2 + across ** 2, axis=-1)
-    return np.sqrt(uniform_filter(squared_slope, size=DENSITY_WINDOW, mode="nearest")).astype(np.float32)
 
 
 @dataclass(frozen=True)

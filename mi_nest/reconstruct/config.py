@@ -50,7 +50,6 @@ class Schedule:
     coarse_to_fine: bool = True      # grids: start at about 8 nodes across, double up to the resolution
     finest_stage: float = 0.5        # coarse to fine: share of the run on the final grid (the coarser share the rest)
     path_curriculum: float = 0.5     # share of the run over which the longest path admitted to the loss grows
-    fringe_curriculum: float = 0.0   # share of the run over which the densest fringes admitted to the loss grow
     warm_start: float = 0.0          # share of the run fitting the Two-step's unwrapped data before the joint fit
     # A field to start from (a reconstruction directory or a stress file, such as an FEM model of the part): a
     # grid fits it and runs on its final grid alone, without the coarse stages and the path curriculum
@@ -65,7 +64,6 @@ class Schedule:
         if self.time_limit is not None and not self.time_limit > 0:
             raise ValueError(f"'time_limit' must be a positive number of seconds, got {self.time_limit}")
         _require_share("path_curriculum", self.path_curriculum, of="the iterations", closed=True)
-        _require_share("fringe_curriculum", self.fringe_curriculum, of="the iterations", closed=True)
         _require_share("warm_start", self.warm_start)
         _require_share("finest_stage", self.finest_stage, closed=True, positive=True)
         _require_share("start_scale_range", self.start_scale_range, of="the start's load")

@@ -61,8 +61,6 @@ BALANCE_EVERY = 25
 BALANCE_TOLERANCE = 1e-4
 # Iterations between read-backs of the field's RMS for a regulariser relative to it.
 FIELD_RMS_EVERY = 50
-# Training views the fringe curriculum measures its range of fringe densities on.
-DENSITY_VIEWS = 16
 
 
 class DivergenceError(RuntimeError):
@@ -102,7 +100,6 @@ class Run:
         self.error_probe = None
         self.channels = ChannelModel.of(dataset, scene, config.model.spectral_step)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
-        self.density_range = None       # (sparsest, densest) fringes of their curriculum, from the training views
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid
         self._free = None               # the free-surface prior's points
@@ -295,10 +292,6 @@ class Run:
         if limit is not None:
             # Opaque: a literal limit would rebuild the kernel every iteration.
             admitted = dr.select(dr.block_sum(length, samples) <= dr.opaque(mi.Float, samples * limit), 1.0, 0.0)
-        densest = self.fringe_limit()
-        if densest is not None:
-            sparse = mi.Float(self.dataset.fringe_density(positions, rows, columns) <= densest)
-            admitted = sparse if admitted is None else admitted * sparse
         with dr.resume_grad():
             leaf = tuple(mi.Float(x) for x in traced.state)
             dr.enable_grad(leaf)
@@ -392,33 +385,6 @@ class Run:
             self.path_range = (float(np.quantile(paths, 0.1)), float(paths.max()) * 1.01)
         shortest, longest = self.path_range
         return shortest * (longest / shortest) ** (self.progress() / span)
-
-    def fringe_limit(self) -> float | None:
-        """The densest fringes (:func:`masks.fringe_density`) whose pixels enter the loss now; None: all.
-
-        One wavelength tells a fringe's order only by counting from where the
-        stress is low; where fringes crowd, a fit of all pixels at once can
-        settle on a wrapped branch. Fitting the sparse fringes first, and
-        admitting denser ones as the field around them is right, is what
-        quality-guided phase unwrapping does in 2D photoelasticity. The limit
-        grows geometrically over the first ``fringe_curriculum`` of the run,
-        from the density a third of the pixels stay under to the densest, both
-        measured on up to :data:`DENSITY_VIEWS` training views spread over the
-        rotations (the same on a resumed run).
-        """
-        span = self.config.schedule.fringe_curriculum
-        if self.progress() >= span or self.fitting_retardance():
-            return None
-        if self.density_range is None:
-            train = self.dataset.split("train")
-            views = [train[i] for i in np.linspace(0, len(train) - 1, min(DENSITY_VIEWS, len(train))).astype(int)]
-            density = np.concatenate([self.dataset.view_fringe_density(v, self.config.optimiser.mask) for v in views])
-            density = density[density > 0]
-            if density.size == 0:
-                return None
-            self.density_range = (float(np.quantile(density, 1 / 3)), float(density.max()) * 1.01)
-        sparsest, densest = self.density_range
-        return sparsest * (densest / sparsest) ** (self.progress() / span)
 
     def _check_divergence(self, loss):
         norm = math.sqrt(sum(float(dr.sum(dr.square(_flat(dr.grad(self.optimizer[k]))))[0])
