@@ -123,6 +123,9 @@ def _parser():
     simulate.add_argument("--float", action="store_true", help="store float32 instead of half floats")
     simulate.add_argument("-D", dest="defines", action="append", default=[], type=parse_define, metavar="NAME=VALUE",
                           help="set a scene $parameter")
+    simulate.add_argument("--scheduler", help="render the rotations as tasks on Dask: 'local' (a cluster of processes "
+                                              "on this machine) or a scheduler's address (tcp://host:8786)")
+    simulate.add_argument("--workers", type=int, help="processes of a local cluster (default: the cores)")
 
     show = commands.add_parser("show", help="contact sheet PNG of a dataset, or a preview PNG of a mesh stress "
                                             "file with its boundary conditions")
@@ -448,9 +451,19 @@ def _simulate(args):
                                   elevation_range=args.elevation_range, res=args.res, spp=args.spp,
                                   test_fraction=args.test_fraction, camera=camera, half=not args.float,
                                   bands=args.bands)
-    report = simulate(args.scene, args.output, settings, defines=args.defines)
+    report = simulate(args.scene, args.output, settings, defines=args.defines, cluster=_cluster(args))
     print(report.describe())
     print(f"wrote {Path(args.output).resolve()}")
+
+
+def _cluster(args):
+    """The cluster ``--scheduler`` and ``--workers`` ask for; None: this process."""
+    from .cluster import ClusterConfig
+    if args.scheduler is None:
+        if args.workers is not None:
+            raise ValueError("--workers sets the processes of a local cluster: add --scheduler local")
+        return None
+    return ClusterConfig(args.scheduler, args.workers)
 
 
 def _show(args):

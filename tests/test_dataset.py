@@ -282,14 +282,14 @@ def test_a_writer_error_stops_the_simulation_with_that_error(tmp_path, monkeypat
         if len(calls) == 3:
             raise OSError(f"{path}: No space left on device")
         return original(path, *args, **kwargs)
-    original = simulation._write_rotation
-    monkeypatch.setattr(simulation, "_write_rotation", failing)
+    original = simulation.write_rotation
+    monkeypatch.setattr(simulation, "write_rotation", failing)
     settings = SimulationSettings(azimuths=4, elevations=4, res=16, spp=1)
     with pytest.raises(OSError, match="No space left on device"):
         simulate("disk_compression", tmp_path / "data", settings, progress=False)
     # The run stopped at the failure: only what the writers had in hand beside it was written.
     written = len(Dataset(tmp_path / "data", allow_incomplete=True))
     assert 2 <= written <= 2 + WRITE_QUEUE + 1
-    monkeypatch.setattr(simulation, "_write_rotation", original)
+    monkeypatch.setattr(simulation, "write_rotation", original)
     report = simulate("disk_compression", tmp_path / "data", settings, progress=False)
     assert (report.kept, report.rendered) == (written, 16 - written)

@@ -14,6 +14,7 @@ import re
 import shlex
 import shutil
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -26,6 +27,8 @@ DOCUMENTS = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "doc
 SHRINK = {"--res": "16", "--azimuth": "2", "--elevation": "2", "--resolution": "8", "--frames": "2",
           "--views": "1", "--iterations": "3", "--minutes": "0.02", "--moving-res": "8"}
 DEFINES = {"res": "16", "grid_resolution": "16", "spp": "1"}
+# The scheduler address docs/cluster.md writes for a cluster's; a LocalCluster's here.
+DOCUMENTED_SCHEDULER = "tcp://HOST:8786"
 # What a tiny reconstruction adds: few rays, a coarse grid, and acceptance of the aliasing tiny images have.
 TINY_RECONSTRUCTION = ["--iterations", "3", "--option", "batch_size=64", "--resolution", "6", "--allow-aliased",
                        "--no-progress"]
@@ -85,6 +88,18 @@ def _demo_reconstruction(directory: Path) -> None:
                      str(directory / "mi_nest_out" / "reconstruction"), *TINY_RECONSTRUCTION]) == 0
 
 
+@contextmanager
+def _scheduler_for(lines: list[str]):
+    """A LocalCluster whose scheduler stands for the documents' ``tcp://HOST:8786`` (its address; None if no
+    line names one): the remote path runs as written, against a real scheduler and worker processes."""
+    if not any(DOCUMENTED_SCHEDULER in line for line in lines):
+        yield None
+        return
+    from distributed import LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        yield cluster.scheduler_address
+
+
 @pytest.mark.parametrize("document", [d for d in DOCUMENTS if commands(d)])
 def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
@@ -93,16 +108,21 @@ def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
     lines = commands(document)
     if any("mi_nest_out/" in line for line in lines):
         _demo_reconstruction(tmp_path)
-    for line in lines:
-        arguments = tiny(line)
-        if arguments[0] == "view":
-            _parser().parse_args(arguments)         # serving is tests/test_viewer.py's
-            continue
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)      # tiny images alias; said in the output
-            code = main(arguments)
-        error = capsys.readouterr().err
-        assert code == 0, f"{document}: `{line}` (run as `mi-nest {shlex.join(arguments)}`) failed: {error}"
+    with _scheduler_for(lines) as scheduler:
+        for line in lines:
+            _run_documented(document, line.replace(DOCUMENTED_SCHEDULER, scheduler or DOCUMENTED_SCHEDULER), capsys)
+
+
+def _run_documented(document, line, capsys):
+    arguments = tiny(line)
+    if arguments[0] == "view":
+        _parser().parse_args(arguments)         # serving is tests/test_viewer.py's
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # tiny images alias; said in the output
+        code = main(arguments)
+    error = capsys.readouterr().err
+    assert code == 0, f"{document}: `{line}` (run as `mi-nest {shlex.join(arguments)}`) failed: {error}"
 
 
 def test_the_shrinking_keeps_every_file_scene_and_option():

@@ -14,6 +14,7 @@ import shutil
 import threading
 import time
 import warnings
+from contextlib import nullcontext
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -22,44 +23,21 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..arguments import whole_number
-from ..io.exr import read_channels, read_metadata, write_channels
+from ..cluster import Cluster, ClusterConfig, connect
+from ..io.exr import read_channels, read_metadata
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
 from ..physics.polariscope import ANALYZERS, INPUT_QWP_SETTINGS, OUTPUT_QWP_SETTINGS
-from ..physics.bands import BandSet, parse_bands
-from ..render import available_memory, render, render_bands, render_plan, scene_bands, scene_light
-from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, pose, reference_pose,
+from ..physics.bands import parse_bands
+from ..render import available_memory, render_plan, scene_bands, scene_light
+from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, polariscope_light, reference_pose,
                      scene_file, scene_inputs, scene_sensor, specimen_bounds, specimen_media, specimen_shapes)
 from ..version import __version__
 from . import format as fmt
-from .camera import CameraModel, bayer_sites
-from .masks import agreement, banded_dolp_mask
-from .schedule import RotationSchedule, camera_to_world
-
-
-@dataclass(frozen=True)
-class SimulationSettings(RotationSchedule):
-    """The rotations of a simulated dataset and how each is rendered, captured and stored."""
-    res: int | None = None           # the scene's $res; None keeps the scene's own
-    spp: int | None = None
-    camera: CameraModel = field(default_factory=CameraModel)
-    dolp_threshold: float = 0.95
-    half: bool = True                # half-float EXR channels
-    # A colour camera's bands, or narrow ones (physics/bands.py; a text such as 'rgb' is read under the scene's
-    # light); None: the scene camera's (one band for a monochrome camera).
-    bands: BandSet | str | None = None
-
-    def __post_init__(self):
-        # Checked before anything is written: 0 must not stand for the scene's own sample count.
-        for name in ("azimuths", "elevations", "res", "spp"):
-            if getattr(self, name) is not None:
-                whole_number(name, getattr(self, name))
-        if self.bands is not None:
-            # Refused before anything starts: bands no camera has, or other than three under the colour filters.
-            bands = parse_bands(self.bands) if isinstance(self.bands, str) else self.bands
-            if self.camera.mosaic:
-                bayer_sites(bands)
+from .masks import agreement
+from .rotation_files import (ALIASED_KEY, DENSEST_KEY, RotationJob, SimulationSettings, render_rotation,
+                             write_rotation)
+from .schedule import camera_to_world
 
 
 @dataclass
@@ -76,7 +54,8 @@ class SimulationReport:
     def describe(self) -> str:
         per = self.rendered or 1
         return (f"{self.rendered} rotations rendered, {self.kept} kept from an earlier run in "
-                f"{self.wall_seconds:.2f} s; render {self.render_seconds:.2f} s ({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
+                f"{self.wall_seconds:.2f} s; render {self.render_seconds:.2f} s "
+                f"({self.render_seconds / per * 1e3:.1f} ms each), noise, masks "
                 f"and writing {self.write_seconds:.2f} s ({self.write_seconds / per * 1e3:.1f} ms each) beside "
                 f"them; DoLP mask against the exact occupancy: mean IoU {self.mask_iou:.3f}")
 
@@ -172,7 +151,7 @@ class _RotationWriter:
             path, channels, entry, aliasing = item
             start = time.perf_counter()
             try:
-                _write_rotation(path, channels, entry, self.index, self.settings, aliasing)
+                write_rotation(path, channels, entry, self.index, self.settings, aliasing)
             except BaseException as error:      # raised in the main thread, at its next put or at finish
                 self._error = error
                 continue
@@ -222,15 +201,19 @@ def dataset_index(scene: mi.Scene, source: str | Path, defines: dict, settings: 
 
 def simulate(scene_file: str | Path, output: str | Path, settings: SimulationSettings = SimulationSettings(),
              defines: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), progress: bool = True,
-             on_rotation: Callable[[dict], None] | None = None) -> SimulationReport:
+             on_rotation: Callable[[dict], None] | None = None, cluster: ClusterConfig | Cluster | None = None,
+             ) -> SimulationReport:
     """Render the dataset of ``scene_file`` into ``output``; resume it if it was interrupted.
 
     ``on_rotation(entry)`` is called after each rotation is safely on disk. The
     run holds ``output``: a second writer gets a
-    :class:`~mi_nest.io.lock.DirectoryInUseError`.
+    :class:`~mi_nest.io.lock.DirectoryInUseError`. With ``cluster`` (one to
+    connect to for the run, or one connected already, ``mi_nest.cluster.connect``)
+    the rotations are tasks on Dask workers (``dataset/sharded.py``); the
+    channels are the same as in one process.
     """
     with locked_directory(output):
-        return _simulate(scene_file, Path(output), settings, dict(defines), progress, on_rotation)
+        return _simulate(scene_file, Path(output), settings, dict(defines), progress, on_rotation, cluster)
 
 
 def _recorded_bands(settings, scene, scene_file):
@@ -248,7 +231,7 @@ def _recorded_bands(settings, scene, scene_file):
     return bands
 
 
-def _simulate(scene_file, output, settings, defines, progress, on_rotation):
+def _simulate(scene_file, output, settings, defines, progress, on_rotation, cluster):
     if settings.res is not None:
         defines["res"] = settings.res
     scene = load_scene(scene_file, **defines)
@@ -271,57 +254,95 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation):
     elif other_entries(output):
         raise fmt.DatasetError(f"{output} exists and is not an mi_nest dataset; choose an empty directory")
 
+    whole = [fmt.rotation_is_whole(output, entry, index) for entry in index["rotations"]]
+    kept = [entry for entry, done in zip(index["rotations"], whole) if done]
+    todo = [entry for entry, done in zip(index["rotations"], whole) if not done]
+    # The cluster is reached, and its workers checked, before the bar starts: a refusal is the run's one line.
+    with (connect(cluster) if isinstance(cluster, ClusterConfig) and todo
+          else nullcontext(cluster if todo else None)) as connected:
+        return _render_rotations(scene, scene_file, defines, output, index, settings, kept, todo, progress,
+                                 on_rotation, connected)
+
+
+def _render_rotations(scene, scene_file, defines, output, index, settings, kept, todo, progress, on_rotation,
+                      cluster):
+    """Render ``todo`` here or on ``cluster`` (a connected one, or None), count ``kept``, and complete the index."""
     from tqdm import tqdm
     bar = tqdm(total=len(index["rotations"]), desc="simulate", unit="rotation", disable=not progress)
-    rendered = kept = 0
-    render_seconds = write_seconds = 0.0
+    tally = _Tally()
     start = time.perf_counter()
 
-    def on_disk(entries):
-        nonlocal write_seconds
-        for entry, seconds in entries:
-            write_seconds += seconds
-            bar.update()
-            if on_rotation is not None:
-                on_rotation(entry)
+    def on_disk(entry, rendered=True, render_seconds=0.0, write_seconds=0.0):
+        tally.add(rendered, render_seconds, write_seconds)
+        bar.update()
+        if on_rotation is not None:
+            on_rotation(entry)
 
     with warnings.catch_warnings(record=True) as caught, bar:    # the bar is closed however the loop ends
         warnings.simplefilter("always")
-        writer = _RotationWriter(settings, index)
-        try:
-            for entry in index["rotations"]:
-                if fmt.rotation_is_whole(output, entry, index):
-                    kept += 1
-                    on_disk([(entry, 0.0)])
-                    continue
-                rendering = time.perf_counter()
-                pose(scene, entry["to_world"])
-                result = (render(scene, spp=settings.spp) if settings.bands is None
-                          else render_bands(scene, settings.bands, spp=settings.spp))
-                render_seconds += time.perf_counter() - rendering
-                if not rendered:    # the index before the first rotation file: a render refused writes nothing
-                    fmt.write_index(output, index)
-                writer.put(output / entry["file"], result.channels, entry, result.aliasing)
-                rendered += 1
-                on_disk(writer.written())
-        except BaseException:
-            writer.finish(raise_error=False)    # what was rendered is written; the first error goes on
-            raise
-        writer.finish()
-        on_disk(writer.written())
+        for entry in kept:
+            on_disk(entry, rendered=False)
+        if cluster is None:
+            _render_here(scene, output, index, settings, todo, on_disk)
+        else:
+            from .sharded import render_on_cluster
+            fmt.write_index(output, index)
+            job = RotationJob(str(scene_file), dict(defines), output, settings,
+                              {k: v for k, v in index.items() if k != "rotations"})
+            render_on_cluster(cluster, job, todo, on_disk)
     wall_seconds = time.perf_counter() - start
     if caught:
         # One summary, not one warning per rotation.
-        warnings.warn(f"{len(caught)} warning(s) over {rendered} rendered rotations; the last: {caught[-1].message}",
-                      RuntimeWarning, stacklevel=2)
+        warnings.warn(f"{len(caught)} warning(s) over {tally.rendered} rendered rotations; the last: "
+                      f"{caught[-1].message}", RuntimeWarning, stacklevel=2)
     ious = [agreement(*(m > 0.5 for m in read_channels(output / e["file"], list(fmt.MASK_CHANNELS)).values())).iou
             for e in index["rotations"]]
     index["complete"] = True
     index["mask_agreement"] = {"mean_iou": float(np.mean(ious)), "min_iou": float(np.min(ious))}
     index["fringe_aliasing"] = _aliasing_summary(output, index["rotations"])
     fmt.write_index(output, index)
-    return SimulationReport(output, rendered, kept, render_seconds, write_seconds, float(np.mean(ious)),
-                            [str(w.message) for w in caught], wall_seconds)
+    return SimulationReport(output, tally.rendered, tally.kept, tally.render_seconds, tally.write_seconds,
+                            float(np.mean(ious)), [str(w.message) for w in caught], wall_seconds)
+
+
+@dataclass
+class _Tally:
+    """Rotations rendered and kept so far, and the seconds their renders and writes took."""
+    rendered: int = 0
+    kept: int = 0
+    render_seconds: float = 0.0
+    write_seconds: float = 0.0
+
+    def add(self, rendered: bool, render_seconds: float, write_seconds: float) -> None:
+        self.rendered += rendered
+        self.kept += not rendered
+        self.render_seconds += render_seconds
+        self.write_seconds += write_seconds
+
+
+def _render_here(scene, output, index, settings, entries, on_disk):
+    """Render ``entries`` in this process, writing on the writer threads beside the renders."""
+    writer = _RotationWriter(settings, index)
+    renders = {}
+
+    def written():
+        for entry, seconds in writer.written():
+            on_disk(entry, True, renders.pop(entry["index"]), seconds)
+
+    try:
+        for number, entry in enumerate(entries):
+            rendering = time.perf_counter()
+            result = render_rotation(scene, entry, settings)
+            renders[entry["index"]] = time.perf_counter() - rendering
+            if not number:      # the index before the first rotation file: a render refused writes nothing
+                fmt.write_index(output, index)
+            writer.put(output / entry["file"], result.channels, entry, result.aliasing)
+            written()
+    except BaseException:
+        writer.finish(raise_error=False)    # what was rendered is written; the first error goes on
+        raise
+    writer.finish()
+    written()
 
 
 def _holds_rotations(output, index):
@@ -345,10 +366,6 @@ def _refuse_an_edited_scene(output, previous, source, differing):
                            "resuming would mix rotations of two scenes: choose a new directory or delete it")
 
 
-# Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
-ALIASED_KEY, DENSEST_KEY = "mi_nest.aliased_fraction", "mi_nest.densest_fringes"
-
-
 def _aliasing_summary(output, rotations):
     """How many views have fringes denser than their pixels, from each rotation file's render report."""
     reports = [read_metadata(output / e["file"]) for e in rotations]
@@ -363,16 +380,3 @@ def _aliasing_summary(output, rotations):
 
 def json_round_trip(value: Any) -> Any:
     return json.loads(json.dumps(value, default=fmt.plain))
-
-
-def _write_rotation(path, rendered, entry, index, settings, aliasing=None):
-    measured = settings.camera.capture({name: rendered[name] for name in index["channels"]}, entry["index"],
-                                       settings.bands)
-    channels = dict(measured)
-    channels["mask.dolp"] = banded_dolp_mask(measured, None if settings.bands is None else settings.bands.names,
-                                             settings.dolp_threshold).astype(np.float32)
-    channels["mask.occupancy"] = (rendered["path.length"] > 0).astype(np.float32)
-    metadata = fmt.rotation_header(entry, index)
-    if aliasing is not None:
-        metadata.update({ALIASED_KEY: f"{aliasing.fraction:.6g}", DENSEST_KEY: f"{aliasing.densest:.6g}"})
-    write_channels(path, channels, half=settings.half, metadata=metadata)
