@@ -127,6 +127,18 @@ def _parser():
                                               "on this machine) or a scheduler's address (tcp://host:8786)")
     simulate.add_argument("--workers", type=int, help="processes of a local cluster (default: the cores)")
 
+    sweep = commands.add_parser("sweep", help="many cases (simulate, reconstruct, evaluate) from a TOML file, as "
+                                              "tasks on Dask")
+    sweep.add_argument("file", help="sweep file: the base scene, the dataset and reconstruction settings and the "
+                                    "values to vary (docs/cluster.md)")
+    sweep.add_argument("-o", "--output", required=True, help="where the cases, sweep.csv and sweep.png go; a rerun "
+                                                             "runs only the cases not finished")
+    sweep.add_argument("--scheduler", default="local", help="'local' (default: a cluster of processes on this "
+                                                            "machine) or a Dask scheduler's address")
+    sweep.add_argument("--workers", type=int, help="cases at once on a local cluster (default: 1; each case uses "
+                                                   "its share of the cores)")
+    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     show = commands.add_parser("show", help="contact sheet PNG of a dataset, or a preview PNG of a mesh stress "
                                             "file with its boundary conditions")
     show.add_argument("dataset", help="dataset directory, or a mesh stress file (3D-TSV .TSV/.stress/.TSVcarti/"
@@ -466,6 +478,38 @@ def _cluster(args):
     return ClusterConfig(args.scheduler, args.workers)
 
 
+def _sweep(args):
+    from .sweep import read_sweep, run_sweep
+    from .cluster import LOCAL, ClusterConfig
+    sweep = read_sweep(args.file, _argument_problem)
+    workers = args.workers if args.workers is not None or args.scheduler != LOCAL else 1
+    rows = run_sweep(sweep, args.output, ClusterConfig(args.scheduler, workers), progress=not args.no_progress)
+    for row in rows:
+        error = row.get("deviatoric_error")
+        print(f"{row['case']}: " + (f"{100 * error:.1f}% in {row['iterations']} iterations" if row["status"] == "done"
+                                    and error is not None else row["status"]))
+    print(f"wrote {Path(args.output).resolve()} (sweep.csv, sweep.png, cases/)")
+    failed = [row for row in rows if row["status"] != "done"]
+    if failed:
+        raise ValueError(f"{len(failed)} of {len(rows)} case(s) failed, the first {failed[0]['case']}: "
+                         f"{failed[0]['status'].removeprefix('failed: ')}; each case's log is in "
+                         f"{args.output}/cases/CASE/log.txt; run the same command again to retry them")
+
+
+def _argument_problem(arguments: list[str]) -> str | None:
+    """What the command-line parser finds wrong with ``arguments`` (None: nothing), in its own words."""
+    import contextlib
+    import io
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            _parser().parse_args(arguments)
+    except SystemExit:
+        errors = [line for line in said.getvalue().splitlines() if "error: " in line]
+        return errors[-1].split("error: ", 1)[1] if errors else said.getvalue().strip()
+    return None
+
+
 def _show(args):
     if Path(args.dataset).is_file():
         _show_mesh(Path(args.dataset), args.output)
@@ -731,7 +775,7 @@ def _scenes(args):
 
 
 COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "bench": _bench,
-            "simulate": _simulate, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
+            "simulate": _simulate, "sweep": _sweep, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
             "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
             "turntable": _turntable, "compare": _compare, "principal": _principal,
             "separate": _separate, "view": _view}
@@ -800,7 +844,8 @@ def _run(args):
 
 # What an interrupted run of these commands kept, beyond what the interruption itself says.
 KEPT_WHEN_INTERRUPTED = {"simulate": "the rotations written so far are kept: run the same command again to resume",
-                         "acquire": "every journaled frame is kept: run the same command again to resume"}
+                         "acquire": "every journaled frame is kept: run the same command again to resume",
+                         "sweep": "the finished cases are kept: run the same command again to run the others"}
 # The shell's exit status for a process ended by SIGINT (128 + 2).
 INTERRUPTED_STATUS = 130
 

@@ -71,7 +71,8 @@ CASES = {
               ["results/bands.csv", "results/bands.png"]),
     "cluster": (["--rotations", "2", "--res", "16"],
                 [r"Every dataset the same as the one process's, channel for channel \(4 rotations\)\.",
-                 r"\| LocalCluster, 2 workers \| [\d.]+ s \| [\d.]+ s \| [\d.]+ s \| [\d.]+ s \| [\d.]+ ms \| [\d.]+x \|",
+                 r"\| LocalCluster, 2 workers \| [\d.]+ s \| [\d.]+ s \| [\d.]+ s \| [\d.]+ s \| [\d.]+ ms "
+                 r"\| [\d.]+x \|",
                  r"Scheduling overhead: [\d.]+ ms per rotation on 1 worker .*"], []),
     "dataset": (["--baseline", "{root}", "--rotations", "2", "--res", "16"],
                 [r"scene +version +total s +render ms +write ms +peak MiB",

@@ -10,6 +10,7 @@ tests/test_viewer.py serves it.
 """
 from __future__ import annotations
 
+import json
 import re
 import shlex
 import shutil
@@ -113,8 +114,38 @@ def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
             _run_documented(document, line.replace(DOCUMENTED_SCHEDULER, scheduler or DOCUMENTED_SCHEDULER), capsys)
 
 
+def _shrunk_sweep(path: str) -> str:
+    """A copy of sweep file ``path`` at the tiny sizes (its scene, parameters, options and varied names kept; the
+    first two values of each), written into the current directory; its name."""
+    import tomllib
+    spec = tomllib.loads(Path(path).read_text())
+    spec.setdefault("simulate", {}).update(azimuth=2, elevation=2, res=16)
+    reconstruct = spec.setdefault("reconstruct", {})
+    reconstruct.pop("minutes", None)
+    reconstruct.update({"iterations": 3, "resolution": 6, "allow_aliased": True})
+    reconstruct.setdefault("option", {})["batch_size"] = 64
+    spec["vary"] = {name: values[:2] for name, values in spec.get("vary", {}).items()}
+
+    def value(v):
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        return "true" if v is True else "false" if v is False else json.dumps(v)
+
+    lines = [f"scene = {value(spec['scene'])}"]
+    for section, table in spec.items():
+        if isinstance(table, dict):
+            lines += [f"[{section}]", *(f"{json.dumps(k)} = {value(v)}" for k, v in table.items())]
+    shrunk = Path(f"tiny_{Path(path).name}")
+    shrunk.write_text("\n".join(lines) + "\n")
+    return str(shrunk)
+
+
 def _run_documented(document, line, capsys):
     arguments = tiny(line)
+    if arguments[0] == "sweep":
+        arguments[1] = _shrunk_sweep(arguments[1])
     if arguments[0] == "view":
         _parser().parse_args(arguments)         # serving is tests/test_viewer.py's
         return

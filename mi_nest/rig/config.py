@@ -15,13 +15,9 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from urllib.parse import urlsplit
 
-try:
-    import tomllib
-except ModuleNotFoundError:     # Python < 3.11
-    import tomli as tomllib
-
 from ..dataset.camera import CameraModel
 from ..dataset.schedule import RotationSchedule
+from ..io.toml import read_toml
 from .twin import Optics
 
 SIMULATED_SCHEMES = {"azimuth": "aptsim", "elevation": "aptsim", "qwp2": "ell14sim"}
@@ -350,11 +346,9 @@ def load(path: str | Path) -> RigConfig:
         from ..scene import scene_path
         path = scene_path("disk_compression").parent / f"{path.name}.toml"
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError as error:
-        raise RigConfigError(f"rig file not found: {path}") from error
-    except tomllib.TOMLDecodeError as error:
-        raise RigConfigError(f"{path}: not valid TOML ({error})") from error
+        data = read_toml(path, "rig file")
+    except ValueError as error:
+        raise RigConfigError(str(error)) from error
     try:
         return parse(data, path)
     except RigConfigError as error:

@@ -1,0 +1,134 @@
+"""``mi-nest sweep`` (issue 38): cases as tasks on a LocalCluster; finished ones kept, failed ones reported without
+stopping the others; bad sweep files refused before any case starts."""
+import csv
+import math
+
+import pytest
+
+from mi_nest.cli import _argument_problem, main
+from mi_nest.sweep import SweepError, read_sweep
+
+TINY = """
+scene = "disk_compression"
+
+[scene_parameters]
+contact_width = 4
+
+[simulate]
+azimuth = 2
+elevation = 2
+res = 8
+noise = 0.01
+
+[reconstruct]
+iterations = 3
+resolution = 6
+allow_aliased = true
+option = { batch_size = 64 }
+
+[vary]
+{vary}
+"""
+
+
+def _sweep_file(tmp_path, vary, name="sweep.toml"):
+    path = tmp_path / name
+    path.write_text(TINY.replace("{vary}", vary))
+    return path
+
+
+def _rows(output):
+    with open(output / "sweep.csv") as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_a_sweep_of_four_cases_completes_and_a_rerun_skips_them(tmp_path, capsys):
+    path = _sweep_file(tmp_path, '"scene.load" = [20, 40]\n"reconstruct.option.seed" = [0, 1]')
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--workers", "2", "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    assert "sweep: 4 case(s), 0 finished before, 4 to run" in said and "cluster: 2 worker(s)" in said
+    rows = _rows(tmp_path / "out")
+    assert [(r["scene.load"], r["reconstruct.option.seed"], r["status"]) for r in rows] == [
+        ("20", "0", "done"), ("20", "1", "done"), ("40", "0", "done"), ("40", "1", "done")]
+    assert all(0 < float(r["deviatoric_error"]) < math.inf and int(r["iterations"]) == 3 for r in rows)
+    # Each case is the commands a user would run: its dataset holds the case's load, its log both commands.
+    case = tmp_path / "out" / "cases" / "load=40_seed=1"
+    assert '"load": "40"' in (case / "data" / "dataset.json").read_text()
+    assert (case / "log.txt").read_text().count("$ mi-nest ") == 2
+    assert (tmp_path / "out" / "sweep.png").stat().st_size > 0
+    # A rerun starts no cluster and runs nothing.
+    finished = {p: p.stat().st_mtime_ns for p in (tmp_path / "out" / "cases").glob("*/row.json")}
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--workers", "2", "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    assert "4 finished before, 0 to run" in said and "cluster:" not in said
+    assert {p: p.stat().st_mtime_ns for p in finished} == finished
+
+
+def test_a_failed_case_is_reported_and_the_others_finish(tmp_path, capsys):
+    # 0 iterations passes the command line's parser but not the reconstruction: the case fails as it runs.
+    path = _sweep_file(tmp_path, '"reconstruct.iterations" = [3, 0]')
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--no-progress"]) == 2
+    captured = capsys.readouterr()
+    assert "1 of 2 case(s) failed, the first iterations=0: " in captured.err and "'iterations'" in captured.err
+    rows = {r["case"]: r for r in _rows(tmp_path / "out")}
+    assert rows["iterations=3"]["status"] == "done" and rows["iterations=0"]["status"].startswith("failed: ")
+    # The next run retries the failed case only.
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert "1 finished before, 1 to run" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("vary, refusal", [
+    ('"scene.bogus" = [1]', r"case bogus=1: the scene has no parameter 'bogus'; its parameters are .*load"),
+    ('"scene.load" = []', r"'scene\.load' must list at least one value"),
+    ('"load" = [1]', r"cannot vary 'load': name scene\.PARAMETER"),
+    ('"simulate.azimuths" = [4]', r"case azimuths=4: mi-nest simulate: unrecognized arguments: --azimuths 4"),
+    ('"simulate.res" = ["big"]', r"mi-nest simulate: argument --res: invalid int value: 'big'"),
+], ids=["unknown parameter", "empty range", "no section", "unknown option", "bad value"])
+def test_bad_sweep_files_are_refused_before_any_case(tmp_path, vary, refusal):
+    path = _sweep_file(tmp_path, vary)
+    with pytest.raises(SweepError, match=refusal):
+        read_sweep(path, _argument_problem)
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_of_a_scene_that_does_not_exist_or_an_unknown_section_is_refused(tmp_path, capsys):
+    missing = tmp_path / "missing.toml"
+    missing.write_text('scene = "no_such_scene"\n')
+    assert main(["sweep", str(missing), "-o", str(tmp_path / "out")]) == 2
+    assert "no_such_scene" in capsys.readouterr().err
+    extra = tmp_path / "extra.toml"
+    extra.write_text('scene = "disk_compression"\n[reconstruction]\niterations = 3\n')
+    assert main(["sweep", str(extra), "-o", str(tmp_path / "out")]) == 2
+    assert "unknown section(s) ['reconstruction']" in capsys.readouterr().err
+    assert main(["sweep", str(tmp_path / "absent.toml"), "-o", str(tmp_path / "out")]) == 2
+    assert "sweep file not found" in capsys.readouterr().err
+
+
+def test_ctrl_c_keeps_the_finished_cases_and_leaves_no_process_behind(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+    path = _sweep_file(tmp_path, '"scene.load" = [20, 30, 40, 50, 60, 70]')
+    output = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "mi_nest.cli", "sweep", str(path), "-o", str(output),
+                            "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(output.glob("cases/*/row.json")) and time.monotonic() < deadline and run.poll() is None:
+        time.sleep(0.1)
+    run.send_signal(signal.SIGINT)
+    _, error = run.communicate(timeout=120)
+    assert run.returncode == 130, error
+    assert error.strip().splitlines()[-1] == ("mi-nest: interrupted; the finished cases are kept: run the same "
+                                              "command again to run the others")
+    finished = sorted(p.parent.name for p in output.glob("cases/*/row.json"))
+    assert 1 <= len(finished) < 6
+    # The cases' own processes ended with their workers.
+    time.sleep(1)
+    assert not [p for p in psutil.process_iter(["cmdline"]) if str(output) in " ".join(p.info["cmdline"] or [])]
+    assert main(["sweep", str(path), "-o", str(output), "--no-progress"]) == 0
+    rows = _rows(output)
+    assert len(rows) == 6 and all(r["status"] == "done" for r in rows)
