@@ -1,6 +1,7 @@
 """mi_nest: 3D photoelastic stress tomography (NeST) inside Mitsuba 3.
 
-Importing the package selects ``llvm_ad_mono`` when no Mitsuba variant is set,
+Importing the package selects ``llvm_ad_mono`` when no Mitsuba variant is set
+(``MI_NEST_VARIANT=cuda_ad_mono`` or ``auto`` for a GPU: ``mi_nest.variants``),
 registers the plugins (``stress`` medium, ``photoelastic`` integrator,
 ``polariscope_light`` emitter, ``polariscope`` sensor) and registers them
 again after every variant change.
@@ -33,12 +34,10 @@ if "DRJIT_LIBLLVM_PATH" not in os.environ:
 
 import mitsuba as mi  # noqa: E402
 
-DEFAULT_VARIANT = "llvm_ad_mono"
+from . import variants  # noqa: E402
 
-
-def supported_variant(variant: str | None) -> bool:
-    """Plugins need a JIT, monochromatic, unpolarised variant (the Jones algebra is ours)."""
-    return variant is not None and variant.endswith("_ad_mono")
+DEFAULT_VARIANT = variants.DEFAULT
+supported_variant = variants.supported
 
 
 def _register_plugins():
@@ -52,7 +51,7 @@ def _on_variant_change(old_variant, new_variant):
 
 
 if mi.variant() is None:
-    mi.set_variant(DEFAULT_VARIANT)
+    variants.set_from_environment()
 _register_plugins()
 mi.detail.add_variant_callback(_on_variant_change)
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import interrupts
+from . import interrupts, variants
 from .demo import DEFAULT_SCENE, DEMO_ITERATIONS, run_demo
 from .views.slicing import REGION_HELP
 from .io.atomic import require_file_path
@@ -30,6 +30,9 @@ OPTION_EXAMPLES = "batch_size=4096, learning_rate=0.03, smoothness=0, average_la
 
 def _parser():
     parser = argparse.ArgumentParser(prog="mi-nest", description="Photoelastic stress tomography in Mitsuba 3.")
+    parser.add_argument("--variant", help="Mitsuba variant to run on: llvm_ad_mono (the CPU, default), cuda_ad_mono "
+                                          "(a GPU) or auto (the GPU where there is one); the environment's "
+                                          "MI_NEST_VARIANT otherwise")
     commands = parser.add_subparsers(dest="command", required=True)
 
     render = commands.add_parser("render", help="render a scene, or a reconstruction from any view, to a "
@@ -816,6 +819,9 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args):
     formatwarning, warnings.formatwarning = warnings.formatwarning, _format_warning
     try:
+        if args.variant is not None:
+            variants.use(args.variant)
+        variants.require_usable()
         for option, name, suffix in FILE_OUTPUTS.get(args.command, ()):
             if getattr(args, name) is not None:
                 require_file_path(getattr(args, name), option, suffix)

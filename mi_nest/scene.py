@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING
 import mitsuba as mi
 import numpy as np
 
+from . import variants
+
 if TYPE_CHECKING:
     from .plugins.photoelastic import PhotoelasticIntegrator
     from .plugins.polariscope import PolariscopeCamera
@@ -82,6 +84,7 @@ def load_scene(path: str | Path, **defaults) -> mi.Scene:
     edge can miss both triangles, which the walk only mends by querying again.
     The scene's id is its file, so that messages can name it.
     """
+    variants.require_usable()
     path = scene_file(path)
     try:
         scene = _load_robust(path, {k: str(v) for k, v in defaults.items()})

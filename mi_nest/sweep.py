@@ -43,6 +43,8 @@ from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
+import mitsuba as mi
+
 from .cluster import Cluster, ClusterConfig, connect
 from .io.atomic import atomic_path
 from .io.lock import locked_directory
@@ -175,8 +177,8 @@ _COMMAND = ("import sys, drjit as dr; threads = int(sys.argv[1]); threads and dr
 
 
 def _run(arguments: list[str], log: Path, threads: int | None) -> None:
-    """``mi-nest ARGUMENTS`` in a process of its own, its output appended to ``log``; RuntimeError with its last
-    line if it fails."""
+    """``mi-nest ARGUMENTS`` in a process of its own, its output appended to ``log``; :class:`CaseFailed` with its
+    last line if it fails."""
     with log.open("a") as out:
         out.write(f"$ mi-nest {' '.join(arguments)}\n")
         out.flush()
@@ -198,17 +200,18 @@ def _end_with_parent():
         pass
 
 
-def run_case(case: Case, directory: Path, threads: int | None) -> dict:
+def run_case(case: Case, directory: Path, threads: int | None, variant: str) -> dict:
     """On a worker: simulate, reconstruct and evaluate ``case`` in ``directory``; its row (written as ``row.json``
-    when it is done, which marks it finished; a failed case's row says why in its status)."""
+    when it is done, which marks it finished; a failed case's row says why in its status). Its commands run on
+    the sweep's Mitsuba ``variant``."""
     directory.mkdir(parents=True, exist_ok=True)
     log = directory / "log.txt"
     start = time.perf_counter()
     try:
-        _run(["simulate", *case.simulate, "-o", str(directory / "data")], log, threads)
+        _run(["--variant", variant, "simulate", *case.simulate, "-o", str(directory / "data")], log, threads)
         simulated = time.perf_counter()
-        _run(["reconstruct", str(directory / "data"), "-o", str(directory / "result"), "--no-progress",
-              *case.reconstruct], log, threads)
+        _run(["--variant", variant, "reconstruct", str(directory / "data"), "-o", str(directory / "result"),
+              "--no-progress", *case.reconstruct], log, threads)
     except CaseFailed as failure:
         return {"case": case.name, **case.values, "status": f"failed: {failure}"}
     record = json.loads((directory / "result" / "reconstruction.json").read_text())
@@ -260,7 +263,8 @@ def run_sweep(sweep: Sweep, output: str | Path, cluster: ClusterConfig | Cluster
 def _run_cases(cluster: Cluster, cases: Sequence[Case], output: Path, rows: dict, bar) -> None:
     from distributed import as_completed
     client = cluster.client
-    futures = {client.submit(run_case, case, output / "cases" / case.name, cluster.drjit_threads, pure=False,
+    futures = {client.submit(run_case, case, output / "cases" / case.name, cluster.drjit_threads, mi.variant(),
+                             pure=False,
                              key=f"mi_nest-case-{case.name}-{time.time_ns()}"): case for case in cases}
     try:
         for future in as_completed(futures):

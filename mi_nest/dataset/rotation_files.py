@@ -55,6 +55,7 @@ class RotationJob:
     output: Path
     settings: SimulationSettings     # its bands resolved
     index: dict                      # dataset.json without its rotations: what a rotation file's header records
+    variant: str                     # the Mitsuba variant the run is on, which its workers take too
 
 
 def render_rotation(scene: mi.Scene, entry: dict, settings: SimulationSettings):

@@ -17,6 +17,9 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import mitsuba as mi
+
+from .. import variants
 from ..cluster import Cluster, ClusterError
 from ..scene import load_scene
 from . import format as fmt
@@ -48,6 +51,8 @@ def render_on_worker(job: RotationJob, entry: dict, drjit_threads: int | None) -
     """On a worker: rotation ``entry`` rendered and written, unless its file is whole already."""
     if fmt.rotation_is_whole(job.output, entry, job.index):
         return RotationOutcome(rendered=False)
+    if mi.variant() != job.variant:
+        variants.use(job.variant)       # a remote worker started on another: refused there if it cannot run it
     if drjit_threads is not None:
         import drjit as dr
         dr.set_thread_count(drjit_threads)

@@ -288,7 +288,7 @@ def _render_rotations(scene, scene_file, defines, output, index, settings, kept,
             from .sharded import render_on_cluster
             fmt.write_index(output, index)
             job = RotationJob(str(scene_file), dict(defines), output, settings,
-                              {k: v for k, v in index.items() if k != "rotations"})
+                              {k: v for k, v in index.items() if k != "rotations"}, mi.variant())
             render_on_cluster(cluster, job, todo, on_disk)
     wall_seconds = time.perf_counter() - start
     if caught:
