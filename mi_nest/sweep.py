@@ -116,6 +116,26 @@ def read_sweep(path: str | Path, check: Callable[[list[str]], str | None]) -> Sw
     unknown = sorted(set(spec) - set(SECTIONS))
     if unknown:
         raise SweepError(f"{path}: unknown section(s) {unknown}; a sweep file has {list(SECTIONS)}")
+    scene = _base_scene(spec, path)
+    vary = spec.get("vary", {})
+    for name, values in vary.items():
+        head = name.split(".", 1)[0]
+        if head not in VARIED or "." not in name:
+            raise SweepError(f"{path}: cannot vary '{name}': name scene.PARAMETER, simulate.OPTION, "
+                             "reconstruct.OPTION or reconstruct.option.NAME")
+        if not isinstance(values, list) or not values:
+            raise SweepError(f"{path}: '{name}' must list at least one value, such as [100, 300]")
+    cases = [_case(spec, scene, dict(zip(vary, combination)), path, check)
+             for combination in itertools.product(*vary.values())]
+    names = [case.name for case in cases]
+    if len(set(names)) < len(names):
+        twice = sorted({name for name in names if names.count(name) > 1})
+        raise SweepError(f"{path}: cases {twice} would share a directory: give the varied values distinct texts")
+    return Sweep(path, list(vary), cases)
+
+
+def _base_scene(spec: dict, path: Path) -> str:
+    """The sweep's scene: a shipped name, or an XML file relative to the sweep file."""
     if not isinstance(spec.get("scene"), str):
         raise SweepError(f"{path}: name the base scene: scene = \"disk_compression\" (a shipped name or an XML file)")
     scene = spec["scene"]
@@ -125,41 +145,34 @@ def read_sweep(path: str | Path, check: Callable[[list[str]], str | None]) -> Sw
         scene_file(scene)
     except (SceneError, OSError, ValueError) as error:
         raise SweepError(f"{path}: {error}") from None
-    vary = spec.get("vary", {})
-    for name, values in vary.items():
-        head = name.split(".", 1)[0]
-        if head not in VARIED or "." not in name:
-            raise SweepError(f"{path}: cannot vary '{name}': name scene.PARAMETER, simulate.OPTION, "
-                             "reconstruct.OPTION or reconstruct.option.NAME")
-        if not isinstance(values, list) or not values:
-            raise SweepError(f"{path}: '{name}' must list at least one value, such as [100, 300]")
-    varied = list(vary)
-    cases = []
-    for combination in itertools.product(*vary.values()):
-        values = dict(zip(varied, combination))
-        sections = {key: dict(spec.get(key, {})) for key in ("scene_parameters", "simulate", "reconstruct")}
-        if "option" in sections["reconstruct"]:      # a copy per case: the varied options go into it
-            sections["reconstruct"]["option"] = dict(sections["reconstruct"]["option"])
-        for name, value in values.items():
-            head, rest = name.split(".", 1)
-            if head == "reconstruct" and rest.startswith("option."):
-                sections["reconstruct"].setdefault("option", {})[rest[len("option."):]] = value
-            else:
-                sections[VARIED[head]][rest] = value
-        defines = [a for k, v in sections["scene_parameters"].items() for a in ("-D", f"{k}={v}")]
-        try:
-            scene_inputs(scene, **sections["scene_parameters"])
-        except SceneError as error:
-            raise SweepError(f"{path}: case {_case_name(values)}: {_unused_parameter(str(error), scene)}") from None
-        simulate = [scene, *_arguments(sections["simulate"]), *defines]
-        reconstruct = _arguments(sections["reconstruct"])
-        for command, arguments in (("simulate", [*simulate, "-o", "DATA"]),
-                                   ("reconstruct", ["DATA", "-o", "OUT", *reconstruct])):
-            problem = check([command, *arguments])
-            if problem:
-                raise SweepError(f"{path}: case {_case_name(values)}: mi-nest {command}: {problem}")
-        cases.append(Case(_case_name(values), values, simulate, reconstruct))
-    return Sweep(path, varied, cases)
+    return scene
+
+
+def _case(spec: dict, scene: str, values: dict, path: Path, check: Callable[[list[str]], str | None]) -> Case:
+    """The case of the varied ``values``: the sweep's sections with them put in, checked as the commands."""
+    sections = {key: dict(spec.get(key, {})) for key in ("scene_parameters", "simulate", "reconstruct")}
+    if "option" in sections["reconstruct"]:      # a copy per case: the varied options go into it
+        sections["reconstruct"]["option"] = dict(sections["reconstruct"]["option"])
+    for name, value in values.items():
+        head, rest = name.split(".", 1)
+        if head == "reconstruct" and rest.startswith("option."):
+            sections["reconstruct"].setdefault("option", {})[rest[len("option."):]] = value
+        else:
+            sections[VARIED[head]][rest] = value
+    name = _case_name(values)
+    try:
+        scene_inputs(scene, **sections["scene_parameters"])
+    except SceneError as error:
+        raise SweepError(f"{path}: case {name}: {_unused_parameter(str(error), scene)}") from None
+    defines = [a for k, v in sections["scene_parameters"].items() for a in ("-D", f"{k}={v}")]
+    simulate = [scene, *_arguments(sections["simulate"]), *defines]
+    reconstruct = _arguments(sections["reconstruct"])
+    for command, arguments in (("simulate", [*simulate, "-o", "DATA"]),
+                               ("reconstruct", ["DATA", "-o", "OUT", *reconstruct])):
+        problem = check([command, *arguments])
+        if problem:
+            raise SweepError(f"{path}: case {name}: mi-nest {command}: {problem}")
+    return Case(name, values, simulate, reconstruct)
 
 
 def _unused_parameter(message: str, scene: str) -> str:

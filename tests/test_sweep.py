@@ -83,7 +83,8 @@ def test_a_failed_case_is_reported_and_the_others_finish(tmp_path, capsys):
     ('"load" = [1]', r"cannot vary 'load': name scene\.PARAMETER"),
     ('"simulate.azimuths" = [4]', r"case azimuths=4: mi-nest simulate: unrecognized arguments: --azimuths 4"),
     ('"simulate.res" = ["big"]', r"mi-nest simulate: argument --res: invalid int value: 'big'"),
-], ids=["unknown parameter", "empty range", "no section", "unknown option", "bad value"])
+    ('"simulate.bands" = ["450 532", "450-532"]', r"cases \['bands=450-532'\] would share a directory"),
+], ids=["unknown parameter", "empty range", "no section", "unknown option", "bad value", "same directory"])
 def test_bad_sweep_files_are_refused_before_any_case(tmp_path, vary, refusal):
     path = _sweep_file(tmp_path, vary)
     with pytest.raises(SweepError, match=refusal):
