@@ -23,6 +23,13 @@ vary; every combination of those values is a case::
     "scene.load" = [100, 300]   # reconstruct.option.NAME
     "reconstruct.option.seed" = [0, 1]
 
+Cases that are not a product (the accuracy suite's) are listed instead, each a table of the same names with one
+value, and optionally its own ``scene`` and ``name``; each listed case is crossed with ``[vary]``::
+
+    [[cases]]
+    name = "dense"
+    "scene.load" = 300
+
 Each case runs ``mi-nest simulate`` and ``mi-nest reconstruct`` as a user would, in a process of its own on a
 worker, into ``OUT/cases/<case>/``; its log goes beside them. A finished case is not run again; a failed one is
 reported with its error and run again by the next sweep, the others going on. The results gather in
@@ -51,7 +58,9 @@ from .io.lock import locked_directory
 from .io.toml import read_toml
 from .scene import SceneError, scene_file, scene_inputs
 
-SECTIONS = ("scene", "scene_parameters", "simulate", "reconstruct", "vary")
+SECTIONS = ("scene", "scene_parameters", "simulate", "reconstruct", "vary", "cases")
+# A listed case's keys besides the varied names.
+CASE_KEYS = ("name", "scene")
 # What a varied name may start with, and the section it changes.
 VARIED = {"scene": "scene_parameters", "simulate": "simulate", "reconstruct": "reconstruct"}
 RESULTS, CHART, ROW = "sweep.csv", "sweep.png", "row.json"
@@ -77,8 +86,10 @@ class Case:
 @dataclass(frozen=True)
 class Sweep:
     source: Path
-    varied: list[str]
+    columns: list[str]           # every name a case sets: the listed cases' and the varied ones
+    varied: list[str]            # the [vary] names
     cases: list[Case]
+    listed: bool                 # whether the file lists its cases ([[cases]])
 
 
 def _flag(name: str) -> str:
@@ -100,9 +111,12 @@ def _arguments(options: dict) -> list[str]:
     return arguments
 
 
-def _case_name(values: dict) -> str:
-    text = "_".join(f"{name.rsplit('.', 1)[-1]}={value}" for name, value in values.items()) or "base"
-    return re.sub(r"[^\w.=,-]+", "-", text)
+def _case_name(entry: dict, varied: dict) -> str:
+    """A case's directory: a listed case's name (or its values), then the varied values, as ``name=value``."""
+    listed = [str(entry["name"])] if "name" in entry else [
+        f"{name.rsplit('.', 1)[-1]}={value}" for name, value in entry.items() if name not in CASE_KEYS]
+    text = "_".join([*listed, *(f"{name.rsplit('.', 1)[-1]}={value}" for name, value in varied.items())])
+    return re.sub(r"[^\w.=,-]+", "-", text or "base")
 
 
 def read_sweep(path: str | Path, check: Callable[[list[str]], str | None]) -> Sweep:
@@ -116,29 +130,44 @@ def read_sweep(path: str | Path, check: Callable[[list[str]], str | None]) -> Sw
     unknown = sorted(set(spec) - set(SECTIONS))
     if unknown:
         raise SweepError(f"{path}: unknown section(s) {unknown}; a sweep file has {list(SECTIONS)}")
-    scene = _base_scene(spec, path)
+    scene = _base_scene(spec.get("scene"), path)
     vary = spec.get("vary", {})
     for name, values in vary.items():
-        head = name.split(".", 1)[0]
-        if head not in VARIED or "." not in name:
-            raise SweepError(f"{path}: cannot vary '{name}': name scene.PARAMETER, simulate.OPTION, "
-                             "reconstruct.OPTION or reconstruct.option.NAME")
+        _check_varied(name, path)
         if not isinstance(values, list) or not values:
             raise SweepError(f"{path}: '{name}' must list at least one value, such as [100, 300]")
-    cases = [_case(spec, scene, dict(zip(vary, combination)), path, check)
-             for combination in itertools.product(*vary.values())]
+    listed = spec.get("cases", [{}])
+    if not isinstance(listed, list) or not listed or not all(isinstance(entry, dict) for entry in listed):
+        raise SweepError(f"{path}: list the cases as [[cases]] tables")
+    for entry in listed:
+        for name, value in entry.items():
+            if name not in CASE_KEYS:
+                _check_varied(name, path)
+            if isinstance(value, (list, dict)):
+                raise SweepError(f"{path}: a listed case gives '{name}' one value, not {value!r} (lists go in [vary])")
+    cases = [_case(spec, _base_scene(entry["scene"], path) if "scene" in entry else scene, entry,
+                   dict(zip(vary, combination)), path, check)
+             for entry in listed for combination in itertools.product(*vary.values())]
     names = [case.name for case in cases]
     if len(set(names)) < len(names):
         twice = sorted({name for name in names if names.count(name) > 1})
-        raise SweepError(f"{path}: cases {twice} would share a directory: give the varied values distinct texts")
-    return Sweep(path, list(vary), cases)
+        raise SweepError(f"{path}: cases {twice} would share a directory: give the varied values distinct texts, "
+                         "or the listed cases names")
+    columns = list(dict.fromkeys([*(k for entry in listed for k in entry if k != "name"), *vary]))
+    return Sweep(path, columns, list(vary), cases, "cases" in spec)
 
 
-def _base_scene(spec: dict, path: Path) -> str:
-    """The sweep's scene: a shipped name, or an XML file relative to the sweep file."""
-    if not isinstance(spec.get("scene"), str):
+def _check_varied(name: str, path: Path) -> None:
+    head = name.split(".", 1)[0]
+    if head not in VARIED or "." not in name:
+        raise SweepError(f"{path}: cannot vary '{name}': name scene.PARAMETER, simulate.OPTION, "
+                         "reconstruct.OPTION or reconstruct.option.NAME")
+
+
+def _base_scene(scene, path: Path) -> str:
+    """A sweep's or a listed case's scene: a shipped name, or an XML file relative to the sweep file."""
+    if not isinstance(scene, str):
         raise SweepError(f"{path}: name the base scene: scene = \"disk_compression\" (a shipped name or an XML file)")
-    scene = spec["scene"]
     if not Path(scene).is_absolute() and Path(scene).suffix == ".xml":
         scene = str((path.parent / scene).resolve())
     try:
@@ -148,8 +177,11 @@ def _base_scene(spec: dict, path: Path) -> str:
     return scene
 
 
-def _case(spec: dict, scene: str, values: dict, path: Path, check: Callable[[list[str]], str | None]) -> Case:
-    """The case of the varied ``values``: the sweep's sections with them put in, checked as the commands."""
+def _case(spec: dict, scene: str, entry: dict, varied: dict, path: Path,
+          check: Callable[[list[str]], str | None]) -> Case:
+    """The case of listed ``entry`` (one value per name, its own scene and name) crossed with the ``varied``
+    values: the sweep's sections with them put in, checked as the commands."""
+    values = {**{k: v for k, v in entry.items() if k not in CASE_KEYS}, **varied}
     sections = {key: dict(spec.get(key, {})) for key in ("scene_parameters", "simulate", "reconstruct")}
     if "option" in sections["reconstruct"]:      # a copy per case: the varied options go into it
         sections["reconstruct"]["option"] = dict(sections["reconstruct"]["option"])
@@ -159,7 +191,9 @@ def _case(spec: dict, scene: str, values: dict, path: Path, check: Callable[[lis
             sections["reconstruct"].setdefault("option", {})[rest[len("option."):]] = value
         else:
             sections[VARIED[head]][rest] = value
-    name = _case_name(values)
+    name = _case_name(entry, varied)
+    if "scene" in entry:
+        values = {"scene": entry["scene"], **values}
     try:
         scene_inputs(scene, **sections["scene_parameters"])
     except SceneError as error:
@@ -269,7 +303,7 @@ def run_sweep(sweep: Sweep, output: str | Path, cluster: ClusterConfig | Cluster
                     _run_cases(connected, todo, output, rows, bar)
         finally:
             ordered = [rows[case.name] for case in sweep.cases if case.name in rows]
-            write_results(ordered, sweep.varied, output)
+            write_results(ordered, sweep, output)
     return ordered
 
 
@@ -296,10 +330,10 @@ def _run_cases(cluster: Cluster, cases: Sequence[Case], output: Path, rows: dict
 COLUMNS = ("deviatoric_error", "test_psnr", "iterations", "optimise_s", "simulate_s", "reconstruct_s")
 
 
-def write_results(rows: list[dict], varied: list[str], output: Path) -> None:
-    """``sweep.csv`` (a row per case) and ``sweep.png``: the error against each varied value and against the
-    optimisation time."""
-    fields = ["case", *varied, "status", *COLUMNS]
+def write_results(rows: list[dict], sweep: Sweep, output: Path) -> None:
+    """``sweep.csv`` (a row per case) and ``sweep.png``: the error of each listed case, against each varied value
+    and against the optimisation time."""
+    fields = ["case", *sweep.columns, "status", *COLUMNS]
     with atomic_path(output / RESULTS, ".csv") as temporary:
         with open(temporary, "w", newline="") as stream:
             writer = csv.DictWriter(stream, fields, extrasaction="ignore")
@@ -307,25 +341,28 @@ def write_results(rows: list[dict], varied: list[str], output: Path) -> None:
             writer.writerows(rows)
     done = [row for row in rows if row["status"] == "done" and row.get("deviatoric_error") is not None]
     if done:
-        _chart(done, varied, output / CHART)
+        _chart(done, ["case"] * sweep.listed + sweep.varied, output / CHART)
 
 
-def _chart(rows: list[dict], varied: list[str], path: Path) -> None:
+def _chart(rows: list[dict], panels: list[str], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    panels = [*varied, "optimise_s"]
+    panels = [*panels, "optimise_s"]
     figure, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), squeeze=False)
     for axis, name in zip(axes[0], panels):
         values = [row[name] for row in rows]
         numeric = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
-        positions = values if numeric else [sorted(set(map(str, values))).index(str(v)) for v in values]
+        labels = sorted(set(map(str, values)), key=[str(v) for v in values].index)
+        positions = values if numeric else [labels.index(str(v)) for v in values]
         axis.scatter(positions, [100 * row["deviatoric_error"] for row in rows], s=18)
         if not numeric:
-            labels = sorted(set(map(str, values)))
-            axis.set_xticks(range(len(labels)), labels, rotation=30, fontsize=8)
+            axis.set_xticks(range(len(labels)), labels, rotation=60 if name == "case" else 30, fontsize=7,
+                            ha="right")
         axis.set(xlabel="optimisation time (s)" if name == "optimise_s" else name,
-                 ylabel="deviatoric error (%)")
+                 ylabel="deviatoric error (%)", yscale="log")
+        axis.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+        axis.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     figure.suptitle(f"sweep: {len(rows)} finished case(s)")
     figure.tight_layout()
     with atomic_path(path, ".png") as temporary:

@@ -104,7 +104,7 @@ def _scheduler_for(lines: list[str]):
 @pytest.mark.parametrize("document", [d for d in DOCUMENTS if commands(d)])
 def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    for folder in ("scenes",):
+    for folder in ("scenes", "experiments"):
         (tmp_path / folder).symlink_to(ROOT / folder)
     lines = commands(document)
     if any("mi_nest_out/" in line for line in lines):
@@ -116,7 +116,7 @@ def test_every_documented_command_runs(document, tmp_path, monkeypatch, capsys):
 
 def _shrunk_sweep(path: str) -> str:
     """A copy of sweep file ``path`` at the tiny sizes (its scene, parameters, options and varied names kept; the
-    first two values of each), written into the current directory; its name."""
+    first two values of each and the first two listed cases), written into the current directory; its name."""
     import tomllib
     spec = tomllib.loads(Path(path).read_text())
     spec.setdefault("simulate", {}).update(azimuth=2, elevation=2, res=16)
@@ -125,6 +125,8 @@ def _shrunk_sweep(path: str) -> str:
     reconstruct.update({"iterations": 3, "resolution": 6, "allow_aliased": True})
     reconstruct.setdefault("option", {})["batch_size"] = 64
     spec["vary"] = {name: values[:2] for name, values in spec.get("vary", {}).items()}
+    tiny_sizes = {"simulate.azimuth": 2, "simulate.elevation": 2, "simulate.res": 16}
+    cases = [{k: tiny_sizes.get(k, v) for k, v in case.items()} for case in spec.pop("cases", [])[:2]]
 
     def value(v):
         if isinstance(v, dict):
@@ -137,6 +139,8 @@ def _shrunk_sweep(path: str) -> str:
     for section, table in spec.items():
         if isinstance(table, dict):
             lines += [f"[{section}]", *(f"{json.dumps(k)} = {value(v)}" for k, v in table.items())]
+    for case in cases:
+        lines += ["[[cases]]", *(f"{json.dumps(k)} = {value(v)}" for k, v in case.items())]
     shrunk = Path(f"tiny_{Path(path).name}")
     shrunk.write_text("\n".join(lines) + "\n")
     return str(shrunk)

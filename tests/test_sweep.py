@@ -133,3 +133,56 @@ def test_ctrl_c_keeps_the_finished_cases_and_leaves_no_process_behind(tmp_path):
     assert main(["sweep", str(path), "-o", str(output), "--no-progress"]) == 0
     rows = _rows(output)
     assert len(rows) == 6 and all(r["status"] == "done" for r in rows)
+
+
+def test_the_accuracy_suite_as_a_sweep_runs_the_suite_s_own_commands(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from mi_nest.cli import _parser
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    import accuracy_suite as suite
+    sweep = read_sweep(root / "experiments" / "sweeps" / "accuracy_suite.toml", _argument_problem)
+    assert [case.name for case in sweep.cases] == [case.name for case in suite.CASES]
+    captured = {}
+
+    def run_command(command, arguments):
+        captured[command] = arguments
+        return 0.0
+    monkeypatch.setattr(suite, "run_command", run_command)
+    (tmp_path / "reconstruction.json").write_text("{}")
+    for listed, case in zip(sweep.cases, suite.CASES):
+        suite.simulate(case, Path("DATA"), case.rotations, case.res)
+        suite.reconstruct(case, Path("DATA"), tmp_path, 10, 200)
+        theirs = {"simulate": captured["simulate"],
+                  "reconstruct": [a if a != str(tmp_path) else "OUT" for a in captured["reconstruct"]]}
+        ours = {"simulate": [*listed.simulate, "-o", "DATA"],
+                "reconstruct": ["DATA", "-o", "OUT", "--no-progress", *listed.reconstruct]}
+        for command in ("simulate", "reconstruct"):
+            parsed = [vars(_parser().parse_args([command, *arguments]))
+                      for arguments in (ours[command], theirs[command])]
+            if command == "reconstruct":    # the suite restarts a case it reruns; a sweep never reruns a finished one
+                parsed[1]["restart"] = parsed[0]["restart"]
+            assert parsed[0] == parsed[1], (case.name, command)
+
+
+def test_listed_cases_cross_the_varied_values(tmp_path):
+    path = tmp_path / "listed.toml"
+    path.write_text(TINY.replace("{vary}", '"reconstruct.option.seed" = [0, 1]') + '''
+[[cases]]
+name = "light"
+"scene.load" = 20
+
+[[cases]]
+scene = "stacked_disks"
+"scene.load" = 30
+''')
+    sweep = read_sweep(path, _argument_problem)
+    assert [case.name for case in sweep.cases] == ["light_seed=0", "light_seed=1", "load=30_seed=0", "load=30_seed=1"]
+    assert sweep.columns == ["scene.load", "scene", "reconstruct.option.seed"]
+    assert sweep.varied == ["reconstruct.option.seed"] and sweep.listed
+    assert sweep.cases[2].simulate[0] == "stacked_disks" and "load=30" in sweep.cases[2].simulate
+    assert sweep.cases[3].values == {"scene": "stacked_disks", "scene.load": 30, "reconstruct.option.seed": 1}
+    path.write_text(TINY.replace("{vary}", "") + '[[cases]]\n"scene.load" = [20, 30]\n')
+    with pytest.raises(SweepError, match=r"a listed case gives 'scene.load' one value, not \[20, 30\]"):
+        read_sweep(path, _argument_problem)
