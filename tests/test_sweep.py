@@ -186,3 +186,11 @@ scene = "stacked_disks"
     path.write_text(TINY.replace("{vary}", "") + '[[cases]]\n"scene.load" = [20, 30]\n')
     with pytest.raises(SweepError, match=r"a listed case gives 'scene.load' one value, not \[20, 30\]"):
         read_sweep(path, _argument_problem)
+
+
+@pytest.mark.parametrize("name, cases", [("accuracy_suite", 17), ("rotation_range", 3), ("stress_optic", 3)])
+def test_the_shipped_sweep_files_read(name, cases):
+    from pathlib import Path
+    sweep = read_sweep(Path(__file__).resolve().parents[1] / "experiments" / "sweeps" / f"{name}.toml",
+                       _argument_problem)
+    assert len(sweep.cases) == cases and len({case.name for case in sweep.cases}) == cases
