@@ -83,6 +83,11 @@ class Case:
     reconstruct: list[str]       # mi-nest reconstruct's, without the dataset and -o
 
 
+    def commands(self) -> list[list[str]]:
+        """What the case runs, as its finished row records it: a case edited since is not the one on disk."""
+        return [self.simulate, self.reconstruct]
+
+
 @dataclass(frozen=True)
 class Sweep:
     source: Path
@@ -263,7 +268,7 @@ def run_case(case: Case, directory: Path, threads: int | None, variant: str) -> 
         return {"case": case.name, **case.values, "status": f"failed: {failure}"}
     record = json.loads((directory / "result" / "reconstruction.json").read_text())
     metrics = record["metrics"]
-    row = {"case": case.name, **case.values, "status": "done",
+    row = {"case": case.name, **case.values, "status": "done", "commands": case.commands(),
            "deviatoric_error": metrics.get("deviatoric_error"), "test_psnr": metrics.get("test_psnr"),
            "iterations": len(record["history"]), "optimise_s": round(record["seconds"], 1),
            "simulate_s": round(simulated - start, 1), "reconstruct_s": round(time.perf_counter() - simulated, 1)}
@@ -290,10 +295,13 @@ def run_sweep(sweep: Sweep, output: str | Path, cluster: ClusterConfig | Cluster
         todo = []
         for case in sweep.cases:
             row = finished_row(output / "cases" / case.name)
-            if row is not None:
-                rows[case.name] = row
-            else:
+            if row is None:
                 todo.append(case)
+            elif row.get("commands") != case.commands():
+                raise SweepError(f"{output / 'cases' / case.name} was run with other settings than {sweep.source} "
+                                 "gives it now; choose a new directory, or delete that case to run it again")
+            else:
+                rows[case.name] = row
         say(f"sweep: {len(sweep.cases)} case(s), {len(rows)} finished before, {len(todo)} to run")
         bar = tqdm(total=len(sweep.cases), initial=len(rows), desc="sweep", unit="case", disable=not progress)
         try:

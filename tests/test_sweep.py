@@ -62,6 +62,10 @@ def test_a_sweep_of_four_cases_completes_and_a_rerun_skips_them(tmp_path, capsys
     said = capsys.readouterr().out
     assert "4 finished before, 0 to run" in said and "cluster:" not in said
     assert {p: p.stat().st_mtime_ns for p in finished} == finished
+    # An edited sweep file does not pass its old results off as its own.
+    path.write_text(path.read_text().replace("noise = 0.01", "noise = 0.02"))
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert "load=20_seed=0 was run with other settings than" in capsys.readouterr().err
 
 
 def test_a_failed_case_is_reported_and_the_others_finish(tmp_path, capsys):
