@@ -137,6 +137,17 @@ def test_bad_cluster_options_get_one_line(tmp_path, capsys, monkeypatch):
     assert error.startswith("mi-nest: error: no Dask scheduler answers at tcp://127.0.0.1:9") and error.count("\n") == 1
 
 
+def test_a_scheduler_without_workers_is_refused(monkeypatch):
+    import mi_nest.cluster
+    from distributed import LocalCluster
+    monkeypatch.setattr(mi_nest.cluster, "CONNECT_TIMEOUT", 1)
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as empty:
+        with pytest.raises(ClusterError, match=f"the scheduler at {empty.scheduler_address} has no workers after 1 s: "
+                                               "start them with 'dask worker ADDRESS --nthreads 1'"):
+            with connect(ClusterConfig(empty.scheduler_address)):
+                pass
+
+
 def test_cli_simulates_on_a_local_cluster(tmp_path, capsys):
     with pytest.warns(RuntimeWarning, match="denser than the pixel grid"):
         status = main(["simulate", "disk_compression", "-o", str(tmp_path / "disk"), "--azimuth", "2",
