@@ -368,9 +368,8 @@ def _chart(rows: list[dict], panels: list[str], path: Path) -> None:
             axis.set_xticks(range(len(labels)), labels, rotation=60 if name == "case" else 30, fontsize=7,
                             ha="right")
         axis.set(xlabel="optimisation time (s)" if name == "optimise_s" else name,
-                 ylabel="deviatoric error (%)", yscale="log")
-        axis.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
-        axis.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+                 ylabel="deviatoric error (%)", ylim=(0, None))
+        axis.grid(alpha=0.3)
     figure.suptitle(f"sweep: {len(rows)} finished case(s)")
     figure.tight_layout()
     with atomic_path(path, ".png") as temporary:
