@@ -13,7 +13,7 @@ import hashlib
 import logging
 import os
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,3 +135,14 @@ def connect(config: ClusterConfig, say: Callable[[str], None] = print) -> Iterat
     finally:
         if local is not None:
             local.close()
+
+
+def cluster_for(cluster: ClusterConfig | Cluster | None, work: bool,
+                say: Callable[[str], None] = print) -> AbstractContextManager[Cluster | None]:
+    """What a run with ``cluster`` uses for the block: a config connected for it (:func:`connect`), a cluster
+    connected already as it is (not closed at the end), or None where there is no ``work`` to give it (nothing
+    started) or no cluster (this process)."""
+    if not work or cluster is None:
+        return nullcontext(None)
+    return connect(cluster, say) if isinstance(cluster, ClusterConfig) else nullcontext(cluster)
+

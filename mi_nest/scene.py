@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import stat
+import xml.etree.ElementTree as ElementTree
 from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
@@ -129,6 +130,16 @@ def scene_inputs(path: str | Path, **defaults) -> list[Path]:
                  if key in node.props and (key == "filename" or str(node.props[key]).lower().endswith(".csv"))]
     files = [Path(str(name)) for name in [*state.files, *named]]
     return list(dict.fromkeys(file.resolve() for file in files if file.is_file()))
+
+
+def scene_defaults(path: Path) -> dict[str, str]:
+    """The ``<default name=... value=...>`` entries of a scene file."""
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (OSError, ElementTree.ParseError):
+        return {}
+    return {element.get("name"): element.get("value") for element in root.iter("default")
+            if element.get("name") is not None}
 
 
 @contextmanager

@@ -46,17 +46,16 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
 import mitsuba as mi
 
-from .cluster import Cluster, ClusterConfig, connect
+from .cluster import Cluster, ClusterConfig, cluster_for
 from .io.atomic import atomic_path
 from .io.lock import locked_directory
 from .io.toml import read_toml
-from .scene import SceneError, scene_file, scene_inputs
+from .scene import SceneError, scene_defaults, scene_file, scene_inputs
 
 SECTIONS = ("scene", "scene_parameters", "simulate", "reconstruct", "vary", "cases")
 # A listed case's keys besides the varied names.
@@ -218,8 +217,7 @@ def _unused_parameter(message: str, scene: str) -> str:
     found = re.search(r"unused parameters:\s*-?\s*\$(\w+)", message)
     if not found:
         return message
-    text = "\n".join(p.read_text(errors="replace") for p in scene_inputs(scene) if p.suffix == ".xml")
-    known = sorted(set(re.findall(r"<default\s+name=\"(\w+)\"", text)))
+    known = sorted({name for file in scene_inputs(scene) if file.suffix == ".xml" for name in scene_defaults(file)})
     return f"the scene has no parameter '{found.group(1)}'; its parameters are {', '.join(known)}"
 
 
@@ -305,8 +303,7 @@ def run_sweep(sweep: Sweep, output: str | Path, cluster: ClusterConfig | Cluster
         say(f"sweep: {len(sweep.cases)} case(s), {len(rows)} finished before, {len(todo)} to run")
         bar = tqdm(total=len(sweep.cases), initial=len(rows), desc="sweep", unit="case", disable=not progress)
         try:
-            with bar, (connect(cluster, say=bar.write) if isinstance(cluster, ClusterConfig) and todo
-                       else nullcontext(cluster if todo else None)) as connected:
+            with bar, cluster_for(cluster, bool(todo), say=bar.write) as connected:
                 if connected is not None:
                     _run_cases(connected, todo, output, rows, bar)
         finally:

@@ -14,7 +14,6 @@ import shutil
 import threading
 import time
 import warnings
-from contextlib import nullcontext
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -23,7 +22,7 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..cluster import Cluster, ClusterConfig, connect
+from ..cluster import Cluster, ClusterConfig, cluster_for
 from ..io.exr import read_channels, read_metadata
 from ..io.lock import locked_directory, other_entries
 from ..physics.aliasing import ALIASED_FRACTION
@@ -258,8 +257,7 @@ def _simulate(scene_file, output, settings, defines, progress, on_rotation, clus
     kept = [entry for entry, done in zip(index["rotations"], whole) if done]
     todo = [entry for entry, done in zip(index["rotations"], whole) if not done]
     # The cluster is reached, and its workers checked, before the bar starts: a refusal is the run's one line.
-    with (connect(cluster) if isinstance(cluster, ClusterConfig) and todo
-          else nullcontext(cluster if todo else None)) as connected:
+    with cluster_for(cluster, bool(todo)) as connected:
         return _render_rotations(scene, scene_file, defines, output, index, settings, kept, todo, progress,
                                  on_rotation, connected)
 

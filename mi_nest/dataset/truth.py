@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import math
 import warnings
-import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
 
-from ..scene import SceneError, load_scene, scene_origin, specimen_bounds, specimen_shapes
+from ..scene import SceneError, load_scene, scene_defaults, scene_origin, specimen_bounds, specimen_shapes
 
 # Defines that set how the camera samples the images, not the specimen or its stress: the images' size is
 # checked against the film where rays are made, so they need not match the record.
@@ -88,16 +87,6 @@ def truth_scene(scene: mi.Scene, source: dict, what: str) -> mi.Scene:
                   f"against the recorded field ({record.file.name} with {_defines_text(record.defines)}). Load "
                   f"the scene with the dataset's defines to silence this", RuntimeWarning, stacklevel=3)
     return recorded
-
-
-def scene_defaults(path: Path) -> dict[str, str]:
-    """The ``<default name=... value=...>`` entries of a scene file."""
-    try:
-        root = ElementTree.parse(path).getroot()
-    except (OSError, ElementTree.ParseError):
-        return {}
-    return {element.get("name"): element.get("value") for element in root.iter("default")
-            if element.get("name") is not None}
 
 
 def _require_same_specimens(given, recorded, what):
