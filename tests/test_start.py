@@ -95,6 +95,16 @@ def test_a_start_at_the_wrong_load_is_scaled_to_the_load_the_images_prefer(tmp_p
     assert as_given.metrics["deviatoric_error"] > from_exact.metrics["deviatoric_error"] + 0.05
     assert f"at {factor:.2f} times its load" in scaled.source["choices"][-1]
     assert as_given.history[0]["start_factor"] == 1.0
+    # A load series: the field at a quarter of the load, taken at the ratio of the loads and scanned about it.
+    quarter = _truth_grid(tmp_path / "quarter.npz", scale=0.25, scene=scene)
+    with pytest.warns(RuntimeWarning):
+        series = optimize(scene, data, progress=False, start=str(quarter),
+                          **{**fine, "start_load_ratio": 4.0, "start_scale_range": 0.1})
+        unscaled = optimize(scene, data, progress=False, start=str(quarter), **{**fine, "start_scale_range": 0.1})
+    assert abs(series.history[0]["start_factor"] - 4.0) <= 4.0 * SCALE_STEP
+    assert series.metrics["deviatoric_error"] < from_exact.metrics["deviatoric_error"] + 0.01
+    assert unscaled.metrics["deviatoric_error"] > 0.6
+    assert "the factor from 3.60 to 4.40" in series.source["choices"][-1]
 
 
 def test_a_reconstruction_is_a_start(tiny_dataset, tmp_path):
@@ -132,6 +142,11 @@ def test_a_start_is_refused_for_networks_and_beside_a_warm_start(tiny_dataset, t
         optimize(_scene(), tiny_dataset, progress=False, start=start, warm_start=0.2)
     with pytest.raises(ValueError, match=r"'start_scale_range' is a share of the start's load in \[0, 1\)"):
         optimize(_scene(), tiny_dataset, progress=False, start=start, start_scale_range=1.5)
+    for ratio in (0.0, -2.0, float("nan")):
+        with pytest.raises(ValueError, match="'start_load_ratio' must be the test's load over the start's"):
+            optimize(_scene(), tiny_dataset, progress=False, start=start, start_load_ratio=ratio)
+    with pytest.raises(ValueError, match="no start is given"):
+        optimize(_scene(), tiny_dataset, progress=False, start_load_ratio=3.0)
 
 
 def test_cli_starts_from_a_field_and_says_so(tiny_dataset, tmp_path, capsys):

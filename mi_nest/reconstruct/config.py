@@ -58,6 +58,9 @@ class Schedule:
     # The start is taken at the load factor within 1 +- this whose images fit a sample of the training views best
     # (stress follows the load in linear elasticity, and a model's load is rarely the test's); 0: as given.
     start_scale_range: float = 0.3
+    # The test's load over the start's, known from the load cell: a reconstruction of the same part at a lower load
+    # (a load series, as photoelasticians count fringes while loading) is multiplied by it before the scan.
+    start_load_ratio: float = 1.0
 
     def __post_init__(self):
         whole_number("iterations", self.iterations)
@@ -67,6 +70,8 @@ class Schedule:
         _require_share("warm_start", self.warm_start)
         _require_share("finest_stage", self.finest_stage, closed=True, positive=True)
         _require_share("start_scale_range", self.start_scale_range, of="the start's load")
+        _require_positive("start_load_ratio", self.start_load_ratio,
+                          "the test's load over the start's, a positive number")
 
 
 @dataclass(frozen=True)
@@ -306,6 +311,9 @@ class OptimizeConfig:
                              "(give kind='grid', or drop start)")
         if self.schedule.start is not None and self.schedule.warm_start:
             raise ValueError("'start' and 'warm_start' both say where the run starts: give one")
+        if self.schedule.start is None and self.schedule.start_load_ratio != 1.0:
+            raise ValueError("'start_load_ratio' scales a start field, and no start is given (give start, or drop "
+                             "start_load_ratio)")
         if not lattice and self.regulariser.equilibrium:
             raise ValueError(f"the equilibrium prior acts on grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or equilibrium=0)")

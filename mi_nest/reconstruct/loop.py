@@ -129,6 +129,7 @@ class Run:
         record (``began_at``)."""
         began = time.perf_counter()
         nodes = starting_nodes(self.field, start_field(source), self.scene, specimen_shapes(self.scene), source)
+        nodes = self.config.schedule.start_load_ratio * nodes
         spread = self.config.schedule.start_scale_range
         factor = 1.0
         if spread > 0:
@@ -139,7 +140,8 @@ class Run:
         self.optimizer = self._optimizer()
         spent = time.perf_counter() - began
         self.seconds += spent
-        self.began_at = {"start": source, "start_factor": factor, "start_seconds": round(spent, 2)}
+        self.began_at = {"start": source, "start_factor": factor * self.config.schedule.start_load_ratio,
+                         "start_seconds": round(spent, 2)}
 
     def progress(self) -> float:
         """How far the run is, in [0, 1]: by iterations, or by time when a time limit comes first."""

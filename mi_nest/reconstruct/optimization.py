@@ -100,7 +100,8 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
             if config.schedule.start is not None and not resumed:
                 run.start_from(config.schedule.start)
             if run.began_at:
-                chosen.append(start_line(run.began_at, config.schedule.start_scale_range))
+                chosen.append(start_line(run.began_at, config.schedule.start_scale_range,
+                                         config.schedule.start_load_ratio))
                 if progress:
                     print(chosen[-1], flush=True)
             run.loop()

@@ -87,10 +87,12 @@ def best_scale(field: TrainableField, nodes: np.ndarray, loss, spread: float) ->
     return float(factors[np.argmin(losses)])
 
 
-def start_line(began_at: dict, spread: float) -> str:
+def start_line(began_at: dict, spread: float, ratio: float = 1.0) -> str:
     """What :meth:`~.loop.Run.start_from` did, for the run's choices."""
     line = f"start: {began_at['start']}"
     if spread > 0:
-        line += (f" at {began_at['start_factor']:.2f} times its load, the factor from {1 - spread:.2f} to "
-                 f"{1 + spread:.2f} whose images fit {SCALE_VIEWS} training views best")
+        line += (f" at {began_at['start_factor']:.2f} times its load, the factor from {ratio * (1 - spread):.2f} "
+                 f"to {ratio * (1 + spread):.2f} whose images fit {SCALE_VIEWS} training views best")
+    elif ratio != 1.0:
+        line += f" at {ratio:.2f} times its load, as given"
     return line

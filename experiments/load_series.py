@@ -1,0 +1,136 @@
+"""A load series against dense fringes: reconstruct the part at a low load, then start the test load from it.
+
+Photoelasticians count fringe orders by watching them appear as the load rises. The same holds here: at a low
+load the fringes are sparse and a descent from zero finds the field; in linear elasticity the stress at the test
+load is that field times the ratio of the loads (which the load cell gives), and a run started there
+(``--start LOW_RESULT --option start_load_ratio=R``, the factor then scanned within 30% of it) is in the right
+basin where a descent from zero stays on a wrong branch (``loss_landscape.py``). Each case is an accuracy suite
+case (its dataset, shared with the suite) and the same part at a lower load, simulated as the suite simulates
+(fixed seeds, read noise 0.01); the low load is reconstructed for ``--low-minutes`` and the test load for the
+rest of ``--minutes``, so the series takes the suite's budget in all. Writes ``load_series.csv`` (with the suite's
+row from zero beside it, when ``accuracy_suite.csv`` has it) and ``load_series.png``:
+
+    .venv/bin/python experiments/load_series.py --cases disk_600N,stacked_disks --minutes 10 --low-minutes 4
+
+The kitten scene has no load: its low load is simulated as three times its fringe value, which gives the images
+a third of the load would. Its reconstruction is then the test load's stress already (ratio 1).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import common
+
+HERE = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(HERE / "benchmarks"))
+from accuracy_suite import CASES, read_rows, reconstruct, simulate  # noqa: E402
+from reconstruction import cpu_name  # noqa: E402
+
+SUITE = HERE / "experiments" / "out" / "accuracy_suite"
+
+
+@dataclass(frozen=True)
+class Series:
+    """The suite case ``case`` reached from the same part under ``low`` (its defines changed so): the start is
+    multiplied by ``ratio``, the test load over the low one as the stress sees it."""
+    case: str
+    low: dict
+    ratio: float
+
+
+SERIES = {s.case: s for s in [
+    Series("disk_600N", {"load": 100}, 6.0),
+    Series("disk_300N", {"load": 100}, 3.0),
+    Series("stacked_disks", {"load": 100}, 3.0),
+    Series("disk_300N_90deg", {"load": 100}, 3.0),
+    Series("disk_1kN_256px", {"load": 200}, 5.0),
+    Series("kitten_air", {"fringe_value": 13500}, 1.0),
+]}
+
+
+def data_path(case, suffix="") -> Path:
+    return SUITE / "data" / f"{case.same_data_as or case.name}{suffix}_{case.rotations}x{case.rotations}_{case.res}"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=",".join(SERIES), help=f"of {', '.join(SERIES)}")
+    parser.add_argument("--minutes", type=float, default=10.0, help="of optimisation per case, both loads together")
+    parser.add_argument("--low-minutes", type=float, default=4.0, help="of them on the low load")
+    parser.add_argument("--output", type=Path, default=HERE / "experiments" / "out" / "load_series")
+    parser.add_argument("--name", default="load_series", help="of the CSV and PNG in experiments/results")
+    args = parser.parse_args()
+    unknown = [name for name in args.cases.split(",") if name not in SERIES]
+    if unknown:
+        raise SystemExit(f"no load series for {unknown}: give some of {', '.join(SERIES)}")
+    if not 0 < args.low_minutes < args.minutes:
+        raise SystemExit(f"--low-minutes must lie between 0 and --minutes ({args.minutes:g}), got {args.low_minutes:g}")
+    suite = {row["case"]: row for row in read_rows(HERE / "experiments" / "results" / "accuracy_suite.csv")}
+    table = HERE / "experiments" / "results" / f"{args.name}.csv"
+    rows = read_rows(table)
+    print(f"CPU: {cpu_name()}", flush=True)
+    by_name = {case.name: case for case in CASES}
+    for name in args.cases.split(","):
+        series, case = SERIES[name], by_name[name]
+        low_case = replace(case, name=f"{name}_low", defines={**case.defines, **series.low}, flags=())
+        high_data, low_data = data_path(case), data_path(case, "_low")
+        simulate(case, high_data, case.rotations, case.res)
+        simulate(low_case, low_data, case.rotations, case.res)
+        low_out, high_out = args.output / name / "low", args.output / name / "test_load"
+        low = reconstruct(low_case, low_data, low_out, args.low_minutes, 200)["record"]
+        started = replace(case, flags=case.flags + ("--start", str(low_out), "--option",
+                                                    f"start_load_ratio={series.ratio:g}"))
+        high = reconstruct(started, high_data, high_out, args.minutes - args.low_minutes, 200)["record"]
+        history = high["history"]
+        zero = suite.get(name, {})
+        row = {"case": name, "defines": " ".join(f"{k}={v}" for k, v in case.defines.items()),
+               "low": " ".join(f"{k}={v}" for k, v in series.low.items()), "ratio": series.ratio,
+               "low_error": round(low["metrics"]["deviatoric_error"], 4), "low_iterations": len(low["history"]),
+               "start_factor": history[0].get("start_factor", ""),
+               "start_error": round(history[0]["deviatoric_error"], 4),
+               "deviatoric_error": round(high["metrics"]["deviatoric_error"], 4), "iterations": len(history),
+               "test_psnr": round(high["metrics"]["test_psnr"], 2),
+               "minutes": args.minutes, "low_minutes": args.low_minutes,
+               "from_zero_in_suite": zero.get("deviatoric_error", ""), "target": case.target, "cpu": cpu_name()}
+        rows = [r for r in rows if r["case"] != name] + [row]
+        print(json.dumps(row), flush=True)
+        common.write_table(rows, table)
+        chart(rows, args.output, table.with_suffix(".png"), f"load series ({cpu_name()})")
+
+
+def chart(rows: list[dict], output: Path, path: Path, title: str) -> None:
+    """Error against optimisation time, the low load's run then the test load's, a line per case."""
+    plt = common.pyplot()
+    figure, axis = plt.subplots(figsize=(8, 5))
+    for row in rows:
+        offset, points = 0.0, []
+        for part in ("low", "test_load"):
+            record = output / row["case"] / part / "reconstruction.json"
+            if not record.is_file():
+                break
+            read = json.loads(record.read_text())
+            if part == "test_load":
+                points.append((offset, float("nan")))
+            points += [(offset + h["seconds"], h["deviatoric_error"]) for h in read["history"]
+                       if "deviatoric_error" in h]
+            offset += read["seconds"]
+        if points:
+            line, = axis.plot(*zip(*points), lw=1.0, label=f"{row['case']} (ratio {row['ratio']})")
+            if row.get("from_zero_in_suite"):
+                axis.axhline(float(row["from_zero_in_suite"]), color=line.get_color(), lw=0.6, ls="--")
+    axis.set(xlabel="optimisation time, low load then test load (s)", ylabel="relative deviatoric stress error",
+             yscale="log", title=title)
+    axis.axhline(0.15, color="grey", lw=0.6, ls=":")
+    axis.legend(fontsize=7)
+    figure.text(0.01, 0.01, "dashed: the accuracy suite's run from zero at the test load", fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+if __name__ == "__main__":
+    main()
