@@ -75,6 +75,31 @@ def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, t
     assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "disk" / "rotations").glob("*.exr")} == written
 
 
+def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_what_was_written(one_process,
+                                                                                                   tmp_path):
+    import dask
+    killed = []
+
+    def kill_a_worker(entry):
+        if not killed and len(_worker_processes()) == 2:
+            victim = _worker_processes()[0]
+            os.kill(victim.pid, signal.SIGKILL)
+            killed.append(victim.pid)
+
+    # No retries: the first worker to die while holding a rotation is every worker that rotation had.
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), warnings_ignored(), \
+            pytest.raises(ClusterError, match="was running on every worker that died") as error:
+        simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS,
+                 on_rotation=kill_a_worker)
+    assert killed and "\n" not in str(error.value) and "run the same command again to resume" in str(error.value)
+    kept = len(list((tmp_path / "disk" / "rotations").glob("*.exr")))
+    assert 1 <= kept < 12
+    with pytest.warns(RuntimeWarning):
+        report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
+    assert report.kept >= kept and report.rendered + report.kept == 12
+    _assert_same_channels(one_process, tmp_path / "disk")
+
+
 def test_an_interrupted_sharded_run_keeps_what_it_wrote_and_resumes(one_process, tmp_path):
     def interrupt(entry):
         if len(list((tmp_path / "disk" / "rotations").glob("*.exr"))) >= 3:

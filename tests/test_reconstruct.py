@@ -529,6 +529,17 @@ def test_cli_reconstructs_a_dataset(tiny_dataset, tmp_path, capsys):
     assert main(["reconstruct", str(tmp_path / "missing"), "-o", str(tmp_path / "x")]) == 2
 
 
+def test_a_regulariser_given_is_kept_on_dense_fringes_even_where_it_equals_the_default(tiny_dataset):
+    from mi_nest.reconstruct.config import DENSE_REGULARISED
+    tiny = dict(iterations=1, batch_size=64, resolution=6, kind="grid", evaluate_views=1, pixel_samples=1)
+    with pytest.warns(RuntimeWarning):
+        by_default = optimize(_scene(), tiny_dataset, progress=False, **tiny)
+        given = optimize(_scene(), tiny_dataset, progress=False, relative_to=REGULARISED.relative_to, **tiny)
+    # 57% of the pixels alias: the default eases, the same value given is the user's.
+    assert by_default.config.regulariser == DENSE_REGULARISED
+    assert given.config.regulariser == REGULARISED
+
+
 def test_a_dataset_too_aliased_to_resolve_is_refused_before_the_run_with_the_fix(tiny_dataset, tmp_path, capsys):
     assert main(["reconstruct", str(tiny_dataset), "-o", str(tmp_path / "result")]) == 2
     error = capsys.readouterr().err

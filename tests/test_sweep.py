@@ -192,7 +192,9 @@ scene = "stacked_disks"
         read_sweep(path, _argument_problem)
 
 
-@pytest.mark.parametrize("name, cases", [("accuracy_suite", 17), ("rotation_range", 3), ("stress_optic", 3)])
+@pytest.mark.parametrize("name, cases", [("accuracy_suite", 17), ("rotation_range", 3), ("stress_optic", 3),
+                                         ("forward_models", 3), ("network_learning_rate", 7),
+                                         ("relative_smoothness", 4)])
 def test_the_shipped_sweep_files_read(name, cases):
     from pathlib import Path
     sweep = read_sweep(Path(__file__).resolve().parents[1] / "experiments" / "sweeps" / f"{name}.toml",

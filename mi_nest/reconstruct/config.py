@@ -221,6 +221,8 @@ REGULARISED = Regulariser(smoothness=1.3e-4, smoothness_edge=5.0, average_last=0
 # 39.7% with REGULARISED (the accuracy suite, 10 minutes each, one run); the stacked disks, on 64 nodes, at 29.6%
 # to 30.2% over three seeds against 26.5% (one run).
 DENSE_REGULARISED = replace(REGULARISED, relative_to=0.5)
+# The options that give a run's regulariser: one given is the user's, even where it equals the default.
+REGULARISER_OPTIONS = frozenset({"regulariser", *(f.name for f in fields(Regulariser))})
 # The MLP's default steps, 50 times smaller than a grid's: at the grids' 0.05 the paper's MLP ran away on the disk
 # target (diverged at iteration 100 of a 10-minute run). In 2 minutes (104 iterations on 2 cores) it ended at
 # 180%, 173%, 123% and 96% error from 0.03, 0.01, 3e-3 and 1e-3 (experiments/network_learning_rate.py): none

@@ -78,13 +78,15 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
     return GRID.name if nodes <= GRID_NODE_LIMIT else HASHGRID.name
 
 
-def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0) -> OptimizeConfig:
+def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0,
+           ease_default_smoothness: bool = True) -> OptimizeConfig:
     """``config`` with its field's kind and resolution decided for a specimen of bounding-box ``extent`` and data
     whose fringes alias in ``aliased_share`` of the specimen's pixels; past :data:`DENSE_FRINGES_SHARE` a grid's
-    default regulariser becomes :data:`~.config.DENSE_REGULARISED`. A run with a start field has one stage."""
+    default regulariser becomes :data:`~.config.DENSE_REGULARISED` (unless ``ease_default_smoothness`` is off: the
+    user gave it). A run with a start field has one stage."""
     resolution = config.field.resolution or default_resolution(extent, aliased_share)
     settled = config.settled(choose_kind(replace(config.field, resolution=resolution), extent), resolution)
-    if dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
+    if ease_default_smoothness and dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     if settled.schedule.start is not None:
         if not KINDS[settled.field.kind].lattice:

@@ -26,7 +26,7 @@ from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specim
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices
-from .config import TWO_STEP, OptimizeConfig
+from .config import REGULARISER_OPTIONS, TWO_STEP, OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
@@ -59,6 +59,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     from there; the result is saved in ``output`` as well.
     """
     base = options.pop("config", None)
+    regulariser_given = bool(REGULARISER_OPTIONS & set(options))
     config = OptimizeConfig(**options) if base is None else replace(base, **options)
     if config.schedule.start is not None and Path(config.schedule.start).exists():
         # Recorded whole: the result and a resumed run name the same file wherever they are run from.
@@ -79,7 +80,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     low, high = specimen_bounds(shapes)
     aliasing = dataset.index.get("fringe_aliasing")
     aliased_share = aliasing["mean_fraction"] if aliasing else 0.0
-    asked, config = config, settle(config, high - low, aliased_share)
+    asked, config = config, settle(config, high - low, aliased_share, ease_default_smoothness=not regulariser_given)
     chosen = choices(asked, config, high - low, dataset, aliased_share)
     if progress:
         print("\n".join(chosen), flush=True)
@@ -160,7 +161,9 @@ def _warn_if_aliased(dataset):
         f"{summary['views']} of {summary['of']} views, over {100 * summary['mean_fraction']:.2g}% of the "
         f"specimen's pixels on average, up to {summary['densest']:.3g} orders per pixel. Pixels there average "
         "several fringes and no longer tell the phase: expect the largest errors there (stress concentrations) "
-        "and wrapped local minima; a finer camera, or a smaller load or stress-optic coefficient, resolves them",
+        "and wrapped local minima; a finer camera, or a smaller load or stress-optic coefficient, resolves them, "
+        "and a start from the part reconstructed at a lower load (--start RESULT --option start_load_ratio=R, "
+        "docs/reconstruction.md 'A load series') avoids the minima",
         RuntimeWarning, stacklevel=3)
 
 
