@@ -52,7 +52,8 @@ def _worker_processes():
             if "multiprocessing" in " ".join(p.cmdline()) and "resource_tracker" not in " ".join(p.cmdline())]
 
 
-def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, tmp_path):
+def _worker_killer():
+    """``(killed, on_rotation)``: a callback that kills one of the two workers once, and the pids it killed."""
     killed = []
 
     def kill_a_worker(entry):
@@ -60,7 +61,11 @@ def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, t
             victim = _worker_processes()[0]
             os.kill(victim.pid, signal.SIGKILL)
             killed.append(victim.pid)
+    return killed, kill_a_worker
 
+
+def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, tmp_path):
+    killed, kill_a_worker = _worker_killer()
     with pytest.warns(RuntimeWarning):
         report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS,
                           on_rotation=kill_a_worker)
@@ -78,14 +83,7 @@ def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, t
 def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_what_was_written(one_process,
                                                                                                    tmp_path):
     import dask
-    killed = []
-
-    def kill_a_worker(entry):
-        if not killed and len(_worker_processes()) == 2:
-            victim = _worker_processes()[0]
-            os.kill(victim.pid, signal.SIGKILL)
-            killed.append(victim.pid)
-
+    killed, kill_a_worker = _worker_killer()
     # No retries: the first worker to die while holding a rotation is every worker that rotation had.
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}), warnings_ignored(), \
             pytest.raises(ClusterError, match="was running on every worker that died") as error:

@@ -7,7 +7,8 @@ right basin; the coarse stages and the path curriculum that otherwise choose the
 (:func:`~.fields.settle`). The basin is narrow: on the 600 N disk a model at 95% of the load ended at 9.0%
 error, one at 90% at 19.6%. A model's load is rarely the test's, and in linear elasticity stress follows the
 load, so the start is first scaled to the load factor whose images fit a sample of the training views best
-(:func:`best_scale`).
+(:func:`best_scale`), about ``start_load_ratio`` where the start is the part at another load: a reconstruction
+at a low load, whose fringes a descent from zero resolves, starts the test load (a load series).
 """
 from __future__ import annotations
 
