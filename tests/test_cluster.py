@@ -17,8 +17,13 @@ TWO_WORKERS = ClusterConfig(workers=2)
 SETTINGS = SimulationSettings(azimuths=4, elevations=3, res=16, spp=2, camera=CameraModel(read_noise=0.01, seed=5))
 
 
+def _rotation_files(directory):
+    """The rotation files written whole: not the temporaries (``.NAME...``) a killed worker leaves mid-write."""
+    return sorted(p for p in (directory / "rotations").glob("*.exr") if not p.name.startswith("."))
+
+
 def _channels(directory):
-    return {path.name: read_channels(path) for path in sorted((directory / "rotations").glob("*.exr"))}
+    return {path.name: read_channels(path) for path in _rotation_files(directory)}
 
 
 def _assert_same_channels(a, b):
@@ -74,10 +79,10 @@ def test_a_killed_worker_loses_no_rotation_and_renders_none_twice(one_process, t
     # is reported once, and one already written is kept, not rendered again.
     assert report.rendered + report.kept == 12
     _assert_same_channels(one_process, tmp_path / "disk")
-    written = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "disk" / "rotations").glob("*.exr")}
+    written = {p.name: p.stat().st_mtime_ns for p in _rotation_files(tmp_path / "disk")}
     again = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
     assert (again.rendered, again.kept) == (0, 12)
-    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "disk" / "rotations").glob("*.exr")} == written
+    assert {p.name: p.stat().st_mtime_ns for p in _rotation_files(tmp_path / "disk")} == written
 
 
 def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_what_was_written(one_process,
@@ -90,7 +95,7 @@ def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_w
         simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS,
                  on_rotation=kill_a_worker)
     assert killed and "\n" not in str(error.value) and "run the same command again to resume" in str(error.value)
-    kept = len(list((tmp_path / "disk" / "rotations").glob("*.exr")))
+    kept = len(_rotation_files(tmp_path / "disk"))
     assert 1 <= kept < 12
     with pytest.warns(RuntimeWarning):
         report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
@@ -100,13 +105,13 @@ def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_w
 
 def test_an_interrupted_sharded_run_keeps_what_it_wrote_and_resumes(one_process, tmp_path):
     def interrupt(entry):
-        if len(list((tmp_path / "disk" / "rotations").glob("*.exr"))) >= 3:
+        if len(_rotation_files(tmp_path / "disk")) >= 3:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt), warnings_ignored():
         simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS,
                  on_rotation=interrupt)
-    kept = len(list((tmp_path / "disk" / "rotations").glob("*.exr")))
+    kept = len(_rotation_files(tmp_path / "disk"))
     assert 3 <= kept < 12
     with pytest.warns(RuntimeWarning):
         report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
@@ -178,4 +183,4 @@ def test_cli_simulates_on_a_local_cluster(tmp_path, capsys):
     assert status == 0
     said = capsys.readouterr().out
     assert "cluster: 2 worker(s)" in said and "4 rotations rendered" in said
-    assert len(list((tmp_path / "disk" / "rotations").glob("*.exr"))) == 4
+    assert len(_rotation_files(tmp_path / "disk")) == 4
