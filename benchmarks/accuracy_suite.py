@@ -124,6 +124,11 @@ def run_command(command: str, arguments: list[str]) -> float:
     return time.perf_counter() - start
 
 
+def dataset_directory(case: Case, root: Path, rotations: int, res: int, suffix: str = "") -> Path:
+    """Where ``case``'s dataset is kept under ``root`` (shared with the case whose data it reconstructs)."""
+    return root / "data" / f"{case.same_data_as or case.name}{suffix}_{rotations}x{rotations}_{res}"
+
+
 def simulate(case: Case, data: Path, rotations: int, res: int) -> float:
     """The case's dataset in ``data`` (resumed when there); returns the seconds it took."""
     return run_command("simulate", [case.scene, "-o", str(data), "--azimuth", str(rotations), "--elevation",
@@ -240,7 +245,7 @@ def main():
             continue
         rotations, res = (min(case.rotations, QUICK["rotations"]), min(case.res, QUICK["res"])) if args.quick \
             else (case.rotations, case.res)
-        data = args.data / "data" / f"{case.same_data_as or case.name}_{rotations}x{rotations}_{res}"
+        data = dataset_directory(case, args.data, rotations, res)
         output = args.data / label / case.name
         try:
             simulated = simulate(case, data, rotations, res)

@@ -29,7 +29,7 @@ from reconstruction import cpu_name
 HERE = Path(__file__).resolve().parents[1]
 
 WORKER = r"""
-import json, statistics, sys, time, warnings
+import json, statistics, sys, tempfile, time, warnings
 args = json.loads(sys.argv[1])
 from mi_nest import variants
 variants.use(args["variant"])
@@ -54,7 +54,7 @@ start = time.perf_counter()
 optimize(truth, args["data"], iterations=args["iterations"], progress=False)
 iterations = args["iterations"] / (time.perf_counter() - start)
 settings = SimulationSettings(azimuths=args["rotations"], elevations=1, res=512)
-with __import__("tempfile").TemporaryDirectory() as directory:
+with tempfile.TemporaryDirectory() as directory:
     start = time.perf_counter()
     simulate("disk_compression", directory, settings, defines={"load": 300, "contact_width": 4}, progress=False)
     per_rotation = (time.perf_counter() - start) / args["rotations"]

@@ -28,7 +28,7 @@ import common
 
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "benchmarks"))
-from accuracy_suite import CASES, read_rows, reconstruct, simulate  # noqa: E402
+from accuracy_suite import CASES, dataset_directory, read_rows, reconstruct, simulate  # noqa: E402
 from reconstruction import cpu_name  # noqa: E402
 
 SUITE = HERE / "experiments" / "out" / "accuracy_suite"
@@ -67,10 +67,6 @@ SERIES = {s.label: s for s in [
 ]}
 
 
-def data_path(case, suffix="") -> Path:
-    return SUITE / "data" / f"{case.same_data_as or case.name}{suffix}_{case.rotations}x{case.rotations}_{case.res}"
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(SERIES), help=f"of {', '.join(SERIES)}")
@@ -96,7 +92,8 @@ def main():
         case = by_name[series.case]
         seeded = ("--option", f"seed={args.seed}") if args.seed else ()
         low_case = replace(case, name=f"{name}_low", defines={**case.defines, **series.low}, flags=seeded)
-        high_data, low_data = data_path(case), data_path(replace(case, name=name), "_low")
+        high_data = dataset_directory(case, SUITE, case.rotations, case.res)
+        low_data = dataset_directory(replace(case, name=name), SUITE, case.rotations, case.res, "_low")
         simulate(case, high_data, case.rotations, case.res)
         simulate(low_case, low_data, case.rotations, case.res)
         name = f"{name}_seed{args.seed}" if args.seed else name

@@ -30,7 +30,7 @@ from mi_nest.io.tsv import read_stress_file, write_stress_file
 
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "benchmarks"))
-from accuracy_suite import CASES, read_rows, reconstruct  # noqa: E402
+from accuracy_suite import CASES, dataset_directory, read_rows, reconstruct  # noqa: E402
 from reconstruction import cpu_name  # noqa: E402
 
 SUITE = HERE / "experiments" / "out" / "accuracy_suite"
@@ -82,7 +82,7 @@ def main():
     print(f"CPU: {cpu_name()}", flush=True)
     for name in args.cases.split(","):
         case = by_name[name]
-        data = SUITE / "data" / f"{case.same_data_as or case.name}_{case.rotations}x{case.rotations}_{case.res}"
+        data = dataset_directory(case, SUITE, case.rotations, case.res)
         if not (data / "dataset.json").is_file():
             raise SystemExit(f"{data} is missing: run python benchmarks/accuracy_suite.py --cases {name} first")
         for factor, spread in [(f, r) for f in factors for r in ranges]:

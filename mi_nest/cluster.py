@@ -145,4 +145,3 @@ def cluster_for(cluster: ClusterConfig | Cluster | None, work: bool,
     if not work or cluster is None:
         return nullcontext(None)
     return connect(cluster, say) if isinstance(cluster, ClusterConfig) else nullcontext(cluster)
-

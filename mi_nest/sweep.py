@@ -81,7 +81,6 @@ class Case:
     simulate: list[str]          # mi-nest simulate's arguments, without -o
     reconstruct: list[str]       # mi-nest reconstruct's, without the dataset and -o
 
-
     def commands(self) -> list[list[str]]:
         """What the case runs, as its finished row records it: a case edited since is not the one on disk."""
         return [self.simulate, self.reconstruct]
@@ -117,10 +116,10 @@ def _arguments(options: dict) -> list[str]:
 
 def _case_name(entry: dict, varied: dict) -> str:
     """A case's directory: a listed case's name (or its values), then the varied values, as ``name=value``."""
-    listed = [str(entry["name"])] if "name" in entry else [
-        f"{name.rsplit('.', 1)[-1]}={value}" for name, value in entry.items() if name not in CASE_KEYS]
-    text = "_".join([*listed, *(f"{name.rsplit('.', 1)[-1]}={value}" for name, value in varied.items())])
-    return re.sub(r"[^\w.=,-]+", "-", text or "base")
+    def named(values):
+        return [f"{name.rsplit('.', 1)[-1]}={value}" for name, value in values.items() if name not in CASE_KEYS]
+    listed = [str(entry["name"])] if "name" in entry else named(entry)
+    return re.sub(r"[^\w.=,-]+", "-", "_".join([*listed, *named(varied)]) or "base")
 
 
 def read_sweep(path: str | Path, check: Callable[[list[str]], str | None]) -> Sweep:

@@ -52,6 +52,14 @@ def test_a_sharded_dataset_equals_the_one_rendered_in_one_process(one_process, t
     assert "cluster: 2 worker(s)" in said and "dashboard http" in said
 
 
+def _assert_rerun_completes(one_process, directory, kept):
+    """A rerun keeps the ``kept`` rotations written before, renders the rest, and equals the one-process dataset."""
+    with pytest.warns(RuntimeWarning):
+        report = simulate("disk_compression", directory, SETTINGS, progress=False, cluster=TWO_WORKERS)
+    assert report.kept >= kept and report.rendered + report.kept == 12
+    _assert_same_channels(one_process, directory)
+
+
 def _worker_processes():
     return [p for p in psutil.Process().children(recursive=True)
             if "multiprocessing" in " ".join(p.cmdline()) and "resource_tracker" not in " ".join(p.cmdline())]
@@ -97,10 +105,7 @@ def test_a_rotation_whose_workers_all_died_stops_the_run_in_one_line_and_keeps_w
     assert killed and "\n" not in str(error.value) and "run the same command again to resume" in str(error.value)
     kept = len(_rotation_files(tmp_path / "disk"))
     assert 1 <= kept < 12
-    with pytest.warns(RuntimeWarning):
-        report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
-    assert report.kept >= kept and report.rendered + report.kept == 12
-    _assert_same_channels(one_process, tmp_path / "disk")
+    _assert_rerun_completes(one_process, tmp_path / "disk", kept)
 
 
 def test_an_interrupted_sharded_run_keeps_what_it_wrote_and_resumes(one_process, tmp_path):
@@ -113,10 +118,7 @@ def test_an_interrupted_sharded_run_keeps_what_it_wrote_and_resumes(one_process,
                  on_rotation=interrupt)
     kept = len(_rotation_files(tmp_path / "disk"))
     assert 3 <= kept < 12
-    with pytest.warns(RuntimeWarning):
-        report = simulate("disk_compression", tmp_path / "disk", SETTINGS, progress=False, cluster=TWO_WORKERS)
-    assert report.kept >= kept and report.rendered + report.kept == 12
-    _assert_same_channels(one_process, tmp_path / "disk")
+    _assert_rerun_completes(one_process, tmp_path / "disk", kept)
 
 
 def warnings_ignored():

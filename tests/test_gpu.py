@@ -1,7 +1,6 @@
 """On a GPU (issue 38): the same commands on Mitsuba's CUDA variant give what the LLVM variant gives. Marked
 ``gpu`` and skipped on machines without a CUDA device; run with ``pytest -m gpu tests/test_gpu.py`` where one is."""
 import json
-import os
 import subprocess
 import sys
 
@@ -17,7 +16,7 @@ pytestmark = [pytest.mark.gpu,
 
 def _mi_nest(*arguments, variant):
     done = subprocess.run([sys.executable, "-m", "mi_nest.cli", "--variant", variant, *arguments],
-                          capture_output=True, text=True, timeout=600, env={**os.environ})
+                          capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     return done.stdout
 
