@@ -61,6 +61,9 @@ class Schedule:
     # The test's load over the start's, known from the load cell: a reconstruction of the same part at a lower load
     # (a load series, as photoelasticians count fringes while loading) is multiplied by it before the scan.
     start_load_ratio: float = 1.0
+    # Grids: every this share of the run on the final grid (up to 70% of the run), refill the regions that nodes out
+    # of equilibrium enclose, where the descent sits on a swapped branch (reconstruct/repair.py); 0: never.
+    branch_repair: float = 0.1
 
     def __post_init__(self):
         whole_number("iterations", self.iterations)
@@ -72,6 +75,7 @@ class Schedule:
         _require_share("start_scale_range", self.start_scale_range, of="the start's load")
         _require_positive("start_load_ratio", self.start_load_ratio,
                           "the test's load over the start's, a positive number")
+        _require_share("branch_repair", self.branch_repair, of="the run", closed=True)
 
 
 @dataclass(frozen=True)

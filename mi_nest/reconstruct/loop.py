@@ -37,7 +37,9 @@ from .fields import make_field, refined
 from .forward import forward_step, make_tracer
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
+from .repair import enclosed_region, harmonic_fill
 from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
+from .trust import imbalance
 from .two_step import RetardanceTargets
 
 # Nodes along the longest axis of the first coarse-to-fine stage.
@@ -61,6 +63,9 @@ BALANCE_EVERY = 25
 BALANCE_TOLERANCE = 1e-4
 # Iterations between read-backs of the field's RMS for a regulariser relative to it.
 FIELD_RMS_EVERY = 50
+# The last share of the run at which a branch repair may refill: a refilled region needs the rest to fit again
+# (the 90-degree disk's took 3 minutes of the 10).
+LAST_REPAIR = 0.7
 
 
 class DivergenceError(RuntimeError):
@@ -104,6 +109,8 @@ class Run:
         self._balance = None            # the equilibrium prior's mean stress solver on the current grid
         self._free = None               # the free-surface prior's points
         self.began_at = {}              # where a start began (start_from): recorded with the first iteration
+        self.repaired = {}              # what the last branch repair refilled: recorded with the next iteration
+        self._last_check = None         # the progress at the last branch repair's check
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -222,6 +229,7 @@ class Run:
             while self.iteration < schedule.iterations and not self.out_of_time():
                 interrupts.check()
                 self._refine_if_due()
+                self._repair_if_due()
                 if self.fitting_retardance() != phase:
                     # Warm start over: the joint fit starts from its field with fresh moments for its own loss.
                     phase = self.fitting_retardance()
@@ -234,7 +242,8 @@ class Run:
                 self.history.append({"iteration": self.iteration, "loss": loss,
                                      "learning_rate": self.learning_rate(),
                                      "seconds": round(self.seconds, 4),
-                                     **(self.began_at if self.iteration == 0 else {})})
+                                     **(self.began_at if self.iteration == 0 else {}), **self.repaired})
+                self.repaired = {}
                 if self.error_probe is not None and self.iteration % reporting.track_error_every == 0:
                     # Outside the timed step: following the error does not slow the run's clock.
                     self.history[-1]["deviatoric_error"] = self.error_probe(self.field)
@@ -271,6 +280,32 @@ class Run:
             return
         self.field = refined(self.field, resolution)
         self.optimizer = self._optimizer()
+
+    def _repair_if_due(self) -> None:
+        """Every ``branch_repair`` of the run on the final grid, up to :data:`LAST_REPAIR`, refill the regions
+        that unbalanced nodes enclose (:mod:`.repair`), with fresh moments for the refilled field; the check's
+        time counts against the run's budget."""
+        every = self.config.schedule.branch_repair
+        if (every <= 0 or not self.field.lattice or self.fitting_retardance() or not self.in_finest_stage()
+                or self.averaging()):
+            return
+        due = math.floor(self.progress() / every + 1e-9)
+        checked = math.floor(self._last_check / every + 1e-9) if self._last_check is not None else 0
+        if due <= checked or self.progress() > LAST_REPAIR:
+            return
+        began = time.perf_counter()
+        self._last_check = self.progress()
+        balance = imbalance(self.scene, self.field, self.field.shape)
+        region, regions = enclosed_region(balance)
+        if regions:
+            nodes = harmonic_fill(self.field.nodes().reshape(*balance.shape, 5), region)
+            self.field.set_nodes(nodes.reshape(-1, 5))
+            self.optimizer = self._optimizer()
+            inside = np.isfinite(balance)
+            self.repaired = {"repair": {"share": round(float(region.sum() / inside.sum()), 4), "regions": regions,
+                                        "median_imbalance": round(float(np.median(balance[inside])), 4),
+                                        "progress": round(self.progress(), 3)}}
+        self.seconds += time.perf_counter() - began
 
     def step(self, tracer: Tracer) -> float:
         optimiser = self.config.optimiser
@@ -450,6 +485,7 @@ class Run:
         self.rng.bit_generator.state = saved.rng
         self.path_range = saved.path_range
         self.last_good = self.iteration
+        self._last_check = self.progress()
         self.began_at = {k: v for k, v in (self.history[0] if self.history else {}).items()
                          if k in ("start", "start_factor", "start_seconds")}
         parameters = self.field.parameters()

@@ -30,6 +30,7 @@ from .config import REGULARISER_OPTIONS, TWO_STEP, OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
+from .repair import repair_lines
 from .start import start_line
 from .trust import TRUST_FILE, trust_map
 
@@ -106,6 +107,10 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
                 if progress:
                     print(chosen[-1], flush=True)
             run.loop()
+        repairs = repair_lines(run.history)
+        chosen.extend(repairs)
+        if progress and repairs:
+            print("\n".join(repairs), flush=True)
         result = run.result()
         result.source["choices"] = chosen
         # The held-out views rendered once: for the PSNR and for the trust map's residuals.
