@@ -93,6 +93,13 @@ DIAGNOSTIC_CASES = [
            flags=("--option", f"seed={seed}"), target=0.10, same_data_as="stacked_disks",
            note=f"diagnostic: the stacked disks with seed {seed} (the run-to-run spread of a dense case)")
       for seed in (1, 2)),
+    # Branch repair (on by default) off, on the same day's data and machine: the control of the repair's rows.
+    *(Case(f"{name}_norepair", scene, defines, flags=("--option", "branch_repair=0"), same_data_as=name,
+           angle_range=angle, target=target, note=f"diagnostic: {note}, branch repair off")
+      for name, scene, defines, angle, target, note in (
+          ("disk_300N_90deg", "disk_compression", {"load": 300, "contact_width": 4}, 90.0, 0.15,
+           "the 300 N disk over 90 degrees"),
+          ("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, 180.0, 0.15, "the 600 N disk"))),
     Case("stacked_disks_relative05", "stacked_disks", {"load": 300, "contact_width": 4},
          flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="stacked_disks",
          note="diagnostic: the stacked disks with the smoothness eased from a field RMS of 0.5 (the default 1)"),
