@@ -2,15 +2,24 @@
 from __future__ import annotations
 
 import mitsuba as mi
+import pytest
 
 import mi_nest  # noqa: F401  (selects the variant, registers the plugins)
-from mi_nest.dataset import SimulationSettings
+from mi_nest.dataset import SimulationSettings, simulate
 
 WAVELENGTH = 532.0
 # The smallest dataset a reconstruction runs on (four rotations at 8 px, one held out), and a load that keeps its
 # fringes resolved.
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 GENTLE = {"load": 20}
+
+
+def tiny_disk(directory, load: float):
+    """The disk under ``load`` (N) simulated as :data:`TINY` into ``directory``; at 8 px its contacts alias, and the
+    warning that says so is expected."""
+    with pytest.warns(RuntimeWarning):
+        simulate("disk_compression", directory, TINY, progress=False, defines={"load": load})
+    return directory
 BREWSTER = 50.0
 # A 6 mm cube of uniform stress ``xx = {stress}`` as a scene file's element (a format string).
 UNIFORM_CUBE_XML = """    <shape type="cube">

@@ -7,7 +7,6 @@ import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.dataset import simulate
 from mi_nest.fields.analytic import DiskCompressionField
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
@@ -17,7 +16,7 @@ from mi_nest.reconstruct.fields import DeviatoricGrid
 from mi_nest.reconstruct.repair import SMALLEST_HOLE, enclosed_region, harmonic_fill
 from mi_nest.reconstruct.trust import imbalance
 from mi_nest.scene import specimen_shapes
-from scenes import TINY
+from scenes import tiny_disk
 
 LOAD = 100
 BOX = (np.array([-20.0, -20.0, -3.0]), np.array([20.0, 20.0, 3.0]))
@@ -102,10 +101,7 @@ def test_a_shifted_lens_in_the_disk_is_found_and_refilled_nearer_the_truth():
 
 @pytest.fixture(scope="module")
 def tiny_dataset(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("data") / "disk"
-    with pytest.warns(RuntimeWarning):
-        simulate("disk_compression", directory, TINY, progress=False, defines={"load": LOAD})
-    return directory
+    return tiny_disk(tmp_path_factory.mktemp("data") / "disk", LOAD)
 
 
 def test_a_run_started_on_a_shifted_lens_repairs_it_records_and_prints_it(tiny_dataset, tmp_path, capsys):

@@ -14,7 +14,7 @@ from mi_nest.reconstruct import optimize
 from mi_nest.reconstruct.fields import grid_shape
 from mi_nest.reconstruct.start import SCALE_STEP
 from mi_nest.scene import specimen_bounds, specimen_shapes
-from scenes import TINY
+from scenes import tiny_disk
 
 LOAD = 200
 # One step of a rate far below the field's scale: the result is where the run started.
@@ -24,10 +24,7 @@ STAY = dict(iterations=1, learning_rate=1e-6, final_learning_rate=1e-6, batch_si
 
 @pytest.fixture(scope="module")
 def tiny_dataset(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("data") / "disk"
-    with pytest.warns(RuntimeWarning):
-        simulate("disk_compression", directory, TINY, progress=False, defines={"load": LOAD})
-    return directory
+    return tiny_disk(tmp_path_factory.mktemp("data") / "disk", LOAD)
 
 
 def _scene():
