@@ -17,13 +17,12 @@ import sys
 from pathlib import Path
 
 import common
-import numpy as np
 
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction, metrics
-from mi_nest.reconstruct.repair import enclosed_region, harmonic_fill
+from mi_nest.reconstruct.repair import refill as refilled_nodes
 from mi_nest.reconstruct.trust import imbalance
 from mi_nest.scene import scene_field, specimen_shapes
 
@@ -45,11 +44,9 @@ def refill(directory: Path, output: Path) -> dict:
     if field.kind != "grid":
         raise SystemExit(f"{directory}: a {field.kind} field; branch repair refills grids only")
     before = probe(field)
-    balance = imbalance(scene, field, field.shape)
-    region, regions = enclosed_region(balance)
-    field.set_nodes(harmonic_fill(field.nodes().reshape(*balance.shape, 5), region).reshape(-1, 5))
+    nodes, share, regions = refilled_nodes(field.nodes(), imbalance(scene, field, field.shape))
+    field.set_nodes(nodes)
     result.save(output)
-    share = float(region.sum() / np.isfinite(balance).sum())
     return {"dataset": str(dataset.directory), "error": round(before, 4), "regions": regions,
             "share": round(share, 4), "refilled_error": round(probe(field), 4)}
 

@@ -2,16 +2,38 @@
 from __future__ import annotations
 
 import mitsuba as mi
+import numpy as np
 import pytest
 
 import mi_nest  # noqa: F401  (selects the variant, registers the plugins)
 from mi_nest.dataset import SimulationSettings, simulate
+from mi_nest.fields.analytic import DiskCompressionField
+from mi_nest.fields.base import sample
+from mi_nest.io.grid import grid_nodes
+from mi_nest.physics.tensors import deviatoric_part
+from mi_nest.reconstruct import FieldConfig
+from mi_nest.reconstruct.fields import DeviatoricGrid
 
 WAVELENGTH = 532.0
 # The smallest dataset a reconstruction runs on (four rotations at 8 px, one held out), and a load that keeps its
 # fringes resolved.
 TINY = SimulationSettings(azimuths=2, elevations=2, res=8, spp=1, test_fraction=0.25)
 GENTLE = {"load": 20}
+
+
+def disk_deviator_grid(plant=None):
+    """The 100 N disk's (4 mm contacts) deviator on a 32-node :class:`DeviatoricGrid` over its box, with
+    ``plant(deviator, nodes)`` (3D-TSV order, mm) stored instead where given; and the grid's nodes and the exact
+    deviator there."""
+    grid = DeviatoricGrid(FieldConfig(kind="grid", resolution=32), np.array([-20.0, -20.0, -3.0]),
+                          np.array([20.0, 20.0, 3.0]), 0.5)
+    nx, ny, nz = grid.shape
+    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, grid.shape)
+    truth = deviatoric_part(sample(DiskCompressionField(load=100, contact_width=4), nodes))
+    values = truth if plant is None else plant(truth, nodes)
+    grid.assign({"grid": mi.TensorXf((values[:, [0, 1, 3, 4, 5]] / grid.stress_scale)
+                                     .reshape(nz, ny, nx, 5).astype(np.float32))})
+    return grid, nodes, truth
 
 
 def tiny_disk(directory, load: float):

@@ -1,22 +1,18 @@
 """Branch repair: the regions that nodes out of equilibrium enclose are found and refilled from around them."""
 import json
 
-import mitsuba as mi
 import numpy as np
 import pytest
 
 import mi_nest
 from mi_nest.cli import main
-from mi_nest.fields.analytic import DiskCompressionField
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
-from mi_nest.physics.tensors import deviatoric_part
-from mi_nest.reconstruct import FieldConfig, metrics, optimize
-from mi_nest.reconstruct.fields import DeviatoricGrid
+from mi_nest.reconstruct import metrics, optimize
 from mi_nest.reconstruct.repair import SMALLEST_HOLE, enclosed_region, harmonic_fill
 from mi_nest.reconstruct.trust import imbalance
 from mi_nest.scene import specimen_shapes
-from scenes import tiny_disk
+from scenes import disk_deviator_grid, tiny_disk
 
 LOAD = 100
 BOX = (np.array([-20.0, -20.0, -3.0]), np.array([20.0, 20.0, 3.0]))
@@ -34,18 +30,6 @@ def _shifted(stress, where):
     shifted = stress.copy()
     shifted[where, 5] += 0.5 * np.abs(stress[where, 0] - stress[where, 1]).mean()
     return shifted
-
-
-def _disk_grid(shifted: bool) -> tuple[DeviatoricGrid, np.ndarray, np.ndarray]:
-    """The 100 N disk's deviator on a 32-node grid (with the lens shifted), its nodes and the truth there."""
-    grid = DeviatoricGrid(FieldConfig(kind="grid", resolution=32), *BOX, 0.5)
-    nx, ny, nz = grid.shape
-    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, grid.shape)
-    truth = deviatoric_part(sample(DiskCompressionField(load=LOAD, contact_width=4), nodes))
-    values = _shifted(truth, _lens(nodes)) if shifted else truth
-    grid.assign({"grid": mi.TensorXf((values[:, [0, 1, 3, 4, 5]] / grid.stress_scale)
-                                     .reshape(nz, ny, nx, 5).astype(np.float32))})
-    return grid, nodes, truth
 
 
 def test_the_harmonic_fill_gives_back_a_linear_field():
@@ -84,9 +68,9 @@ def test_a_ring_of_unbalanced_nodes_marks_what_it_encloses_and_an_open_one_nothi
 
 def test_a_shifted_lens_in_the_disk_is_found_and_refilled_nearer_the_truth():
     scene = mi_nest.load_scene("disk_compression", res=8, load=LOAD, contact_width=4)
-    exact, _, _ = _disk_grid(False)
+    exact, _, _ = disk_deviator_grid()
     assert enclosed_region(imbalance(scene, exact, exact.shape))[1] == 0     # the truth: nothing to repair
-    grid, nodes, truth = _disk_grid(True)
+    grid, nodes, truth = disk_deviator_grid(lambda deviator, nodes: _shifted(deviator, _lens(nodes)))
     balance = imbalance(scene, grid, grid.shape)
     region, count = enclosed_region(balance)
     lens = _lens(nodes).reshape(balance.shape) & np.isfinite(balance)

@@ -1,38 +1,23 @@
 """Where to trust a reconstruction: the trust map's terms against what they must be."""
 import json
 
-import mitsuba as mi
 import numpy as np
 import pytest
 
 import mi_nest
 from mi_nest.dataset import Dataset, SimulationSettings, simulate
-from mi_nest.fields.analytic import DiskCompressionField
-from mi_nest.fields.base import sample
-from mi_nest.io.grid import grid_nodes
-from mi_nest.reconstruct import FieldConfig, optimize
+from mi_nest.reconstruct import optimize
 from mi_nest.reconstruct.evaluation import heldout_predictions
-from mi_nest.physics.tensors import deviatoric_part
-from mi_nest.reconstruct.fields import DeviatoricGrid
 from mi_nest.reconstruct.trust import TRUST_FILE, TrustMap, imbalance, trust_map
-
-
-def _disk_grid(planted: bool) -> DeviatoricGrid:
-    truth = DiskCompressionField(load=100, contact_width=4)
-    grid = DeviatoricGrid(FieldConfig(kind="grid", resolution=32), np.array([-20.0, -20.0, -3.0]),
-                          np.array([20.0, 20.0, 3.0]), 0.5)
-    nx, ny, nz = grid.shape
-    nodes = grid_nodes(grid.bbox_min, grid.bbox_max, grid.shape)
-    values = deviatoric_part(sample(truth, nodes))[:, [0, 1, 3, 4, 5]] / grid.stress_scale
-    if planted:
-        values = values * (1.0 + (nodes[:, :1] + 20.0) / 40.0)
-    grid.assign({"grid": mi.TensorXf(values.reshape(nz, ny, nx, 5).astype(np.float32))})
-    return grid
+from scenes import disk_deviator_grid
 
 
 def test_a_balanced_field_is_trusted_more_than_a_planted_imbalance():
     scene = mi_nest.load_scene("disk_compression", res=8, load=100, contact_width=4)
-    exact, planted = (imbalance(scene, grid, grid.shape) for grid in (_disk_grid(False), _disk_grid(True)))
+    # Planted: the truth scaled by a factor that grows along x.
+    grids = (disk_deviator_grid()[0],
+             disk_deviator_grid(lambda truth, nodes: truth * (1.0 + (nodes[:, :1] + 20.0) / 40.0))[0])
+    exact, planted = (imbalance(scene, grid, grid.shape) for grid in grids)
     centre = np.s_[:, 8:24, 8:24]      # away from the contacts, where the grid resolves the truth
     assert np.nanmedian(exact[centre]) < np.nanmedian(planted[centre]) / 3
     assert np.isnan(exact[:, 0, 0]).all()       # the box's corners lie outside the disk

@@ -37,7 +37,7 @@ from .fields import make_field, refined
 from .forward import forward_step, make_tracer
 from .losses import generator_loss, l1_loss
 from .rays import ViewRays, stratified
-from .repair import enclosed_region, harmonic_fill
+from .repair import refill
 from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
 from .trust import imbalance
 from .two_step import RetardanceTargets
@@ -110,7 +110,7 @@ class Run:
         self._free = None               # the free-surface prior's points
         self.began_at = {}              # where a start began (start_from): recorded with the first iteration
         self.repaired = {}              # what the last branch repair refilled: recorded with the next iteration
-        self._last_check = None         # the progress at the last branch repair's check
+        self._last_check = 0.0          # the progress at the last branch repair's check
 
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
@@ -290,20 +290,17 @@ class Run:
                 or self.averaging()):
             return
         due = math.floor(self.progress() / every + 1e-9)
-        checked = math.floor(self._last_check / every + 1e-9) if self._last_check is not None else 0
-        if due <= checked or self.progress() > LAST_REPAIR:
+        if due <= math.floor(self._last_check / every + 1e-9) or self.progress() > LAST_REPAIR:
             return
         began = time.perf_counter()
         self._last_check = self.progress()
         balance = imbalance(self.scene, self.field, self.field.shape)
-        region, regions = enclosed_region(balance)
+        nodes, share, regions = refill(self.field.nodes(), balance)
         if regions:
-            nodes = harmonic_fill(self.field.nodes().reshape(*balance.shape, 5), region)
-            self.field.set_nodes(nodes.reshape(-1, 5))
+            self.field.set_nodes(nodes)
             self.optimizer = self._optimizer()
-            inside = np.isfinite(balance)
-            self.repaired = {"repair": {"share": round(float(region.sum() / inside.sum()), 4), "regions": regions,
-                                        "median_imbalance": round(float(np.median(balance[inside])), 4),
+            self.repaired = {"repair": {"share": round(share, 4), "regions": regions,
+                                        "median_imbalance": round(float(np.nanmedian(balance)), 4),
                                         "progress": round(self.progress(), 3)}}
         self.seconds += time.perf_counter() - began
 

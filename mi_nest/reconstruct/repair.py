@@ -94,6 +94,17 @@ def harmonic_fill(values: np.ndarray, unknown: np.ndarray) -> np.ndarray:
     return flat.reshape(values.shape)
 
 
+def refill(nodes: np.ndarray, imbalance: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """``(nodes, share, regions)``: a grid's ``nodes`` (``(N, 5)``, x fastest) with :func:`enclosed_region` of its
+    ``imbalance`` (the grid's node shape, z first) refilled by :func:`harmonic_fill`, the share of the part's nodes
+    refilled and the number of holes behind them (0: nothing to refill, ``nodes`` as given)."""
+    region, regions = enclosed_region(imbalance)
+    if not regions:
+        return nodes, 0.0, 0
+    filled = harmonic_fill(np.reshape(nodes, (*imbalance.shape, -1)), region).reshape(np.shape(nodes))
+    return filled, float(region.sum() / np.isfinite(imbalance).sum()), regions
+
+
 def repair_lines(history: list[dict]) -> list[str]:
     """One line per repair recorded in a run's ``history`` (:meth:`~.loop.Run._repair_if_due`), for its choices."""
     return [f"branch repair at {100 * entry['repair']['progress']:.0f}% of the run (iteration {entry['iteration']}): "
