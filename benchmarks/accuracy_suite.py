@@ -81,6 +81,12 @@ CASES = [
 DIAGNOSTIC_CASES = [
     Case("disk_300N_128px", "disk_compression", {"load": 300, "contact_width": 4}, res=128, target=0.10,
          note="diagnostic: the 300 N disk with twice the pixels across"),
+    Case("disk_300N_128px_relative05", "disk_compression", {"load": 300, "contact_width": 4}, res=128,
+         flags=("--option", "relative_to=0.5"), target=0.10, same_data_as="disk_300N_128px",
+         note="diagnostic: the 300 N disk with twice the pixels across and the smoothness eased as on dense fringes "
+              "(7% of its pixels alias, under the share that eases it by default)"),
+    Case("boussinesq_64nodes", "boussinesq", flags=("--resolution", "64"), same_data_as="boussinesq",
+         note="diagnostic: the point load on a grid twice as fine (its best grid 26.9% against 59.7% at 32 nodes)"),
     Case("stacked_disks_128px", "stacked_disks", {"load": 300, "contact_width": 4}, res=128, target=0.10,
          note="diagnostic: the stacked disks with twice the pixels across"),
     Case("stacked_disks_64nodes", "stacked_disks", {"load": 300, "contact_width": 4}, flags=("--resolution", "64"),

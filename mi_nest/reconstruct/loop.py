@@ -106,7 +106,7 @@ class Run:
         self.channels = ChannelModel.of(dataset, scene, config.model.spectral_step)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
-        self._balance = None            # the equilibrium prior's mean stress solver on the current grid
+        self._balance = None            # the mean stress solver on the current grid (prior and branch repair)
         self._free = None               # the free-surface prior's points
         self.began_at = {}              # where a start began (start_from): recorded with the first iteration
         self.repaired = {}              # what the last branch repair refilled: recorded with the next iteration
@@ -294,7 +294,7 @@ class Run:
             return
         began = time.perf_counter()
         self._last_check = self.progress()
-        balance = imbalance(self.scene, self.field, self.field.shape)
+        balance = imbalance(self.scene, self.field, self.field.shape, self._mean_solver())
         nodes, share, regions = refill(self.field.nodes(), balance)
         if regions:
             self.field.set_nodes(nodes)
@@ -379,14 +379,20 @@ class Run:
                                           self.config.optimiser.seed)
         return self._free
 
+    def _mean_solver(self) -> equilibrium.MeanStressSolver:
+        """The specimen's mean stress solver on the current grid, set up once per grid (the equilibrium prior
+        and branch repair's checks share it)."""
+        if self._balance is None or self._balance.stencil.shape != self.field.shape:
+            self._balance = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(
+                self.scene, self.field.shape, self.field.bbox_min, self.field.bbox_max))
+        return self._balance
+
     def _balance_mean(self) -> None:
         """Every :data:`BALANCE_EVERY` iterations and on a new grid, the mean stress that best balances the
         deviator (the equilibrium penalty's minimum over it: by the envelope theorem the penalty's gradient in
         the deviator is then its gradient with the mean held); the grid's cells whose centres lie inside the
         specimen are where it is asked."""
-        if self._balance is None or self._balance.stencil.shape != self.field.shape:
-            self._balance = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(
-                self.scene, self.field.shape, self.field.bbox_min, self.field.bbox_max))
+        self._mean_solver()
         # A refined grid comes without one; a resumed run keeps its checkpoint's, as the run it resumes did.
         if self.field.mean is None or self.iteration % BALANCE_EVERY == 0:
             start = None if self.field.mean is None else np.array(self.field.mean)

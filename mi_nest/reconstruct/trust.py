@@ -205,17 +205,22 @@ def curvature_spread(second_moment: np.ndarray, inside: np.ndarray) -> np.ndarra
     return spread / np.nanmedian(spread) if inside.any() else spread
 
 
-def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int]) -> np.ndarray:
+def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int],
+              solver: equilibrium.MeanStressSolver | None = None) -> np.ndarray:
     """The :attr:`TrustMap.imbalance` of ``field`` on the lattice ``shape`` over its box (NaN at nodes no cell
-    inside the specimen touches)."""
+    inside the specimen touches); ``solver``: the specimen's mean stress solver on that lattice, where the
+    caller keeps one (None: built here)."""
     nx, ny, nz = shape
     if getattr(field, "shape", None) == tuple(shape):
         deviator = np.array(field.texture.tensor(), dtype=np.float64)
     else:
         stress = deviatoric_part(sample(field, grid_nodes(field.bbox_min, field.bbox_max, shape)))
         deviator = (stress[:, [0, 1, 3, 4, 5]] / field.stress_scale).reshape(nz, ny, nx, 5)
-    stencil = equilibrium.specimen_stencil(scene, shape, field.bbox_min, field.bbox_max)
-    mean, _ = equilibrium.MeanStressSolver(stencil).solve(deviator)
+    if solver is None:
+        solver = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, shape, field.bbox_min,
+                                                                           field.bbox_max))
+    stencil = solver.stencil
+    mean, _ = solver.solve(deviator)
     cells = np.full((nz - 1, ny - 1, nx - 1), np.nan)
     np.put(cells, stencil.cells, np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1)))
     # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
