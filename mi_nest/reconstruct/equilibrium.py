@@ -195,6 +195,11 @@ class MeanStressSolver:
     not bent. Tens of iterations; a direct factorisation took 8 minutes on a 64 x 64 x 33 grid."""
 
     CHECKERBOARD = 1e-3
+    # Enough for the prior and the trust map alike: a solve warm-started to 1e-4 left the same residual to seven
+    # digits as one to 1e-8 (0.13 s against 2.5 s on the 300 N disk's 64 x 64 x 11 grid); from zero, the 600 N
+    # disk's RMS residual the same to six digits as at 1e-6 and every node's imbalance within 0.3%, in an eighth
+    # of the time.
+    PRACTICAL_TOLERANCE = 1e-4
 
     def __init__(self, stencil: CellStencil):
         import pyamg

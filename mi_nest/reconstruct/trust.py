@@ -52,9 +52,6 @@ LATTICE = 48
 # Samples along each ray per node spacing.
 SAMPLES_PER_SPACING = 2
 TRUST_FILE = "trust.npz"
-# The mean stress solve's tolerance for the imbalance: on the 600 N disk's 64 x 64 x 11 grid 1e-4 left the RMS
-# residual the same to six digits as 1e-6, every node's imbalance within 0.3%, in an eighth of the time.
-IMBALANCE_TOLERANCE = 1e-4
 # What a trust map holds per node, the uncertainty first.
 TERMS = ("uncertainty", "coverage", "direction_spread", "heldout_residual", "curvature_spread")
 
@@ -223,7 +220,7 @@ def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int
         solver = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, shape, field.bbox_min,
                                                                            field.bbox_max))
     stencil = solver.stencil
-    mean, _ = solver.solve(deviator, tolerance=IMBALANCE_TOLERANCE)
+    mean, _ = solver.solve(deviator, tolerance=solver.PRACTICAL_TOLERANCE)
     cells = np.full((nz - 1, ny - 1, nx - 1), np.nan)
     np.put(cells, stencil.cells, np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1)))
     # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
