@@ -5,7 +5,10 @@ the accuracy suite's), the fields ``(1 - t) R + t T`` between the result ``R`` a
 size that fits the truth best (least squares on a lattice three times finer than the evaluation points), are
 scored at ``t`` from 0 to 1: the mean L1 error of the 16 intensities on training and held-out views (each
 pixel averaged over 16 stratified rays, as the camera integrates it), the smoothness penalty at the run's final
-weight, and the relative deviatoric error. Read off it:
+weight, the relative deviatoric error, and the mean squared equilibrium residual ``div(s) + grad(p)`` that the
+best mean stress leaves (stress scales per box length, squared) over the grid's cells inside the part, over all of
+them and with the largest twentieth left out (where a grid cannot balance even the truth: contacts, singular
+loads). Read off it:
 
 - ``T``'s error: what this grid could reach at best (the representation's floor); where it keeps half the
   result's error or more, the verdict is ``floor``;
@@ -32,7 +35,7 @@ import numpy as np
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_scene, truth_scene
-from mi_nest.reconstruct import Reconstruction, metrics
+from mi_nest.reconstruct import Reconstruction, equilibrium, metrics
 from mi_nest.reconstruct.evaluation import SampledViewLoss
 from mi_nest.scene import scene_field, specimen_shapes
 
@@ -45,6 +48,8 @@ STEPS = np.linspace(0.0, 1.0, 11)
 TIE = 0.02
 # Where the truth's best grid keeps this share of the result's error, most of that error is the grid's.
 FLOOR_SHARE = 0.5
+# The share of cells with the largest equilibrium residual that the trimmed residual leaves out.
+EQUILIBRIUM_TRIM = 0.05
 
 
 def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], str]:
@@ -67,6 +72,8 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
     train = SampledViewLoss(scene, dataset, tracer, mask, "train", views, samples)
     test = SampledViewLoss(scene, dataset, tracer, mask, "test", views, samples)
     regulariser = result.config.regulariser
+    balance = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, field.shape, field.bbox_min,
+                                                                        field.bbox_max))
     rows = []
     for t in STEPS:
         field.set_nodes((1.0 - t) * found + t * best)
@@ -74,15 +81,27 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
         penalty = field.smoothness_penalty(regulariser.smoothness_at(1.0, rms), regulariser.edge_at(rms))
         rows.append({"case": directory.name, "t": round(float(t), 2), "deviatoric_error": round(error_of(field), 4),
                      "train_loss": round(train(field), 5), "test_loss": round(test(field), 5),
-                     "smoothness": round(float(penalty[0]) if penalty is not None else 0.0, 6)})
+                     "smoothness": round(float(penalty[0]) if penalty is not None else 0.0, 6),
+                     **imbalance(field, balance)})
     exact = {"case": directory.name, "t": "truth", "deviatoric_error": 0.0, "train_loss": round(train(truth), 5),
-             "test_loss": round(test(truth), 5), "smoothness": float("nan")}
+             "test_loss": round(test(truth), 5), "smoothness": float("nan"), "equilibrium": float("nan"),
+             "equilibrium_trimmed": float("nan")}
     seconds = time.perf_counter() - start
     found_verdict = verdict(rows)
     for row in rows + [exact]:
         row.update(verdict=found_verdict, views=f"{len(train.positions)} train, {len(test.positions)} held out",
                    pixel_samples=samples, seconds=round(seconds, 1), cpu=cpu_name())
     return rows + [exact], explain(rows, exact)
+
+
+def imbalance(field, solver: equilibrium.MeanStressSolver) -> dict:
+    """The grid's mean squared equilibrium residual over the cells inside the part, and with the
+    :data:`EQUILIBRIUM_TRIM` largest left out."""
+    deviator = np.array(field.texture.tensor(), dtype=np.float64)
+    mean, _ = solver.solve(deviator)
+    squared = np.sum(equilibrium.residual_numpy(deviator, mean, solver.stencil) ** 2, axis=1)
+    clipped = np.sort(squared)[:len(squared) - int(EQUILIBRIUM_TRIM * len(squared))]
+    return {"equilibrium": round(float(squared.mean()), 3), "equilibrium_trimmed": round(float(clipped.mean()), 3)}
 
 
 VERDICTS = {
@@ -117,6 +136,10 @@ def explain(rows: list[dict], exact: dict) -> str:
              f"{at_best['train_loss']:.4f} at the best grid, {exact['train_loss']:.4f} at the exact truth, "
              f"highest on the way {barrier:+.4f} above the result",
              f"  {VERDICTS[at_result['verdict']]}"]
+    lines.append(f"  equilibrium residual (mean square over the part's cells): {at_result['equilibrium']:.4g} at the "
+                 f"result, {at_best['equilibrium']:.4g} at the best grid; without the largest "
+                 f"{EQUILIBRIUM_TRIM:.0%} of cells {at_result['equilibrium_trimmed']:.4g} and "
+                 f"{at_best['equilibrium_trimmed']:.4g}")
     objective = [r["train_loss"] + r["smoothness"] for r in rows]
     if objective[-1] > objective[0] + TIE * at_result["train_loss"]:
         lines.append(f"  the smoothness at its final weight prefers the result ({objective[0]:.4f} against "
