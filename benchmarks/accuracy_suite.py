@@ -89,6 +89,10 @@ DIAGNOSTIC_CASES = [
          note="diagnostic: the point load on a grid twice as fine (its best grid 26.9% against 59.7% at 32 nodes)"),
     Case("stacked_disks_128px", "stacked_disks", {"load": 300, "contact_width": 4}, res=128, target=0.10,
          note="diagnostic: the stacked disks with twice the pixels across"),
+    Case("stacked_disks_128px_dense", "stacked_disks", {"load": 300, "contact_width": 4}, res=128,
+         flags=("--resolution", "64", "--option", "relative_to=0.5"), target=0.10, same_data_as="stacked_disks_128px",
+         note="diagnostic: the stacked disks with twice the pixels across under the dense-fringe settings, given (8% "
+              "of its pixels alias: about 16% at 64 px)"),
     Case("stacked_disks_64nodes", "stacked_disks", {"load": 300, "contact_width": 4}, flags=("--resolution", "64"),
          target=0.10, note="diagnostic: the stacked disks on a grid twice as fine (the default gives 32 nodes)",
          same_data_as="stacked_disks"),

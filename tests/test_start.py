@@ -11,6 +11,7 @@ from mi_nest.dataset import SimulationSettings, simulate
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
 from mi_nest.reconstruct import optimize
+from mi_nest.reconstruct.config import STARTED_LEARNING_RATE, Optimiser
 from mi_nest.reconstruct.fields import grid_shape
 from mi_nest.reconstruct.start import SCALE_STEP
 from mi_nest.scene import specimen_bounds, specimen_shapes
@@ -154,6 +155,15 @@ def test_cli_starts_from_a_field_and_says_so(tiny_dataset, tmp_path, capsys):
     saved = json.loads((tmp_path / "run" / "reconstruction.json").read_text())
     assert saved["config"]["schedule"]["start"] == str(start.resolve())
     assert saved["source"]["choices"][-1].startswith(f"start: {start.resolve()} at ")
+    # A started run steps at a tenth of the descent's rate, and says so; a rate given is the user's, even the
+    # descent's own.
+    assert saved["config"]["optimiser"]["learning_rate"] == STARTED_LEARNING_RATE == Optimiser().learning_rate / 10
+    assert "learning rate 0.005 (a started run's, below the descent's" in saved["source"]["choices"][1]
+    given = ["--option", f"learning_rate={Optimiser().learning_rate}"]
+    assert main(arguments + ["-o", str(tmp_path / "given"), "--start", str(start), *given]) == 0
+    saved = json.loads((tmp_path / "given" / "reconstruction.json").read_text())
+    assert saved["config"]["optimiser"]["learning_rate"] == Optimiser().learning_rate
+    assert saved["source"]["choices"][1].endswith("learning rate 0.05")
     capsys.readouterr()
     assert main(arguments + ["-o", str(tmp_path / "bad"), "--start", str(tmp_path / "none.TSV")]) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0

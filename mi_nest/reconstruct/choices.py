@@ -9,8 +9,8 @@ from ..dataset import Dataset
 from ..tracer.registry import METHODS as TRACER_METHODS
 from .kinds import AUTO, kind_named
 from .config import DENSE_REGULARISED, FORWARD_MODELS, NO_REGULARISER, REGULARISED, TWO_STEP, OptimizeConfig
-from .fields import (DEFAULT_RESOLUTIONS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT, MIN_NODES_ACROSS, dense_fringes,
-                     grid_shape)
+from .fields import (DEFAULT_RESOLUTIONS, DENSE_FRINGES_PIXELS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT,
+                     MIN_NODES_ACROSS, dense_fringes, grid_shape, share_at_reference)
 
 METHOD_NAMES = {**{name: TRACER_METHODS[name].label for name in FORWARD_MODELS}, TWO_STEP: "the Two-step baseline"}
 
@@ -38,18 +38,22 @@ def data_facts(dataset: Dataset) -> str:
 
 
 def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, dataset: Dataset,
-            aliased_share: float = 0.0) -> list[str]:
+            aliased_share: float = 0.0, pixels: int = DENSE_FRINGES_PIXELS) -> list[str]:
     """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`, which
-    was given the same ``extent`` and ``aliased_share``)."""
+    was given the same ``extent``, ``aliased_share`` and ``pixels``)."""
     field = settled.field
     lattice = kind_named(field.kind).lattice
     if lattice:
         nx, ny, nz = grid_shape(field.resolution, extent)
         if asked.field.resolution is not None:
             why = "--resolution"
-        elif dense_fringes(aliased_share):
+        elif dense_fringes(aliased_share, pixels):
             why = (f"the finest default: the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the "
                    "pixels")
+            if pixels != DENSE_FRINGES_PIXELS:
+                scaled = share_at_reference(aliased_share, pixels)
+                why += (f" at {DENSE_FRINGES_PIXELS} across (about {100 * scaled:.0f}%; {100 * aliased_share:.0f}% "
+                        f"of these {pixels})")
         else:
             why = (f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
                    f"{MIN_NODES_ACROSS} across the thinnest side")
@@ -80,6 +84,8 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
         "" if schedule.time_limit is None else f" or {schedule.time_limit / 60:.3g} minutes, whichever ends first")
     if schedule.start is not None:
         budget += f"; from the start field {schedule.start}, on the final grid alone (no coarse stages or path " \
-                  "curriculum)"
+                  f"curriculum), learning rate {settled.optimiser.learning_rate:g}"
+        if settled.optimiser.learning_rate != asked.optimiser.learning_rate:
+            budget += " (a started run's, below the descent's: its first steps would throw the start off)"
     return [f"data: {data_facts(dataset)}",
             f"chose: {representation}; {METHOD_NAMES[settled.model.method]} in {step}; {smoothing}; {budget}"]

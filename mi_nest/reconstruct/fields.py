@@ -26,7 +26,8 @@ from ..fields.base import StressField
 from ..io.grid import grid_nodes
 from ..physics.aliasing import UNRESOLVED_SHARE
 from . import equilibrium
-from .config import DENSE_REGULARISED, REGULARISED, FieldConfig, OptimizeConfig, Regulariser
+from .config import (DENSE_REGULARISED, REGULARISED, STARTED_LEARNING_RATE, FieldConfig, OptimizeConfig, Optimiser,
+                     Regulariser)
 from .kinds import AUTO, GRID, HASHGRID, KINDS, MLP
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
@@ -44,19 +45,34 @@ MIN_NODES_ACROSS = 10
 # the 32 their shape gives (the accuracy suite, 10 minutes each).
 # The share is the one past which reconstruct refuses a dataset without --allow-aliased.
 DENSE_FRINGES_SHARE = UNRESOLVED_SHARE
+# The pixels across at which that share is read. The same field aliases in fewer pixels of finer images, about as
+# their size (the 300 N disk in 15.4% at 64 px and 7.2% at 128, the stacked disks in 19.4% and 8.0%), yet needs the
+# same grid: at 128 px under the shape's defaults they ended at 39.0% and 41.6%, under these 19.5% and 12.5% (the
+# accuracy suite, 10 minutes each). The share of finer images is therefore scaled to images this many pixels
+# across; coarser images' share is taken as it is (already higher than it would be here; a few pixels across a
+# part, as in the tests' 8-pixel datasets, do not follow the proportion).
+DENSE_FRINGES_PIXELS = 64
 
 
-def dense_fringes(aliased_share: float) -> bool:
-    """Whether data whose fringes alias in ``aliased_share`` of the specimen's pixels take the dense-fringe
-    defaults (past :data:`DENSE_FRINGES_SHARE`)."""
-    return aliased_share > DENSE_FRINGES_SHARE
+def dense_fringes(aliased_share: float, pixels: int = DENSE_FRINGES_PIXELS) -> bool:
+    """Whether data whose fringes alias in ``aliased_share`` of the specimen's pixels, in images ``pixels``
+    across, take the dense-fringe defaults: past :data:`DENSE_FRINGES_SHARE` once scaled to
+    :data:`DENSE_FRINGES_PIXELS` across."""
+    return share_at_reference(aliased_share, pixels) > DENSE_FRINGES_SHARE
 
 
-def default_resolution(extent: np.ndarray, aliased_share: float = 0.0) -> int:
+def share_at_reference(aliased_share: float, pixels: int) -> float:
+    """About the share of the specimen's pixels the same fringes would alias in at :data:`DENSE_FRINGES_PIXELS`
+    across, from ``aliased_share`` at ``pixels`` across (as it is from coarser images)."""
+    return aliased_share * max(pixels, DENSE_FRINGES_PIXELS) / DENSE_FRINGES_PIXELS
+
+
+def default_resolution(extent: np.ndarray, aliased_share: float = 0.0, pixels: int = DENSE_FRINGES_PIXELS) -> int:
     """The grid resolution for a specimen of bounding-box ``extent`` (mm): the coarsest of
     :data:`DEFAULT_RESOLUTIONS` with :data:`MIN_NODES_ACROSS` nodes across its thinnest side (the finest
-    where none has, or where the data's fringes alias in more than :data:`DENSE_FRINGES_SHARE` of the pixels)."""
-    if dense_fringes(aliased_share):
+    where none has, or where the data's fringes, ``aliased_share`` of the pixels of images ``pixels`` across, are
+    dense: :func:`dense_fringes`)."""
+    if dense_fringes(aliased_share, pixels):
         return DEFAULT_RESOLUTIONS[-1]
     for resolution in DEFAULT_RESOLUTIONS:
         if min(grid_shape(resolution, extent)) >= MIN_NODES_ACROSS:
@@ -79,14 +95,17 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
 
 
 def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0,
-           ease_default_smoothness: bool = True) -> OptimizeConfig:
+           ease_default_smoothness: bool = True, slow_started_steps: bool = True,
+           pixels: int = DENSE_FRINGES_PIXELS) -> OptimizeConfig:
     """``config`` with its field's kind and resolution decided for a specimen of bounding-box ``extent`` and data
-    whose fringes alias in ``aliased_share`` of the specimen's pixels; past :data:`DENSE_FRINGES_SHARE` a grid's
-    default regulariser becomes :data:`~.config.DENSE_REGULARISED` (unless ``ease_default_smoothness`` is off: the
-    user gave it). A run with a start field has one stage."""
-    resolution = config.field.resolution or default_resolution(extent, aliased_share)
+    whose fringes alias in ``aliased_share`` of the specimen's pixels in images ``pixels`` across; on dense fringes
+    (:func:`dense_fringes`) a grid's default regulariser becomes :data:`~.config.DENSE_REGULARISED` (unless
+    ``ease_default_smoothness`` is off: the user gave it). A run with a start field has one stage, and the default
+    learning rate becomes :data:`~.config.STARTED_LEARNING_RATE` (unless ``slow_started_steps`` is off: the user
+    gave one)."""
+    resolution = config.field.resolution or default_resolution(extent, aliased_share, pixels)
     settled = config.settled(choose_kind(replace(config.field, resolution=resolution), extent), resolution)
-    if ease_default_smoothness and dense_fringes(aliased_share) and settled.regulariser == REGULARISED:
+    if ease_default_smoothness and dense_fringes(aliased_share, pixels) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     if settled.schedule.start is not None:
         if not KINDS[settled.field.kind].lattice:
@@ -94,6 +113,10 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
                              f"large here (auto chose '{settled.field.kind}'): give a lower --resolution")
         # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
         settled = replace(settled, schedule=replace(settled.schedule, coarse_to_fine=False, path_curriculum=0.0))
+        optimiser = settled.optimiser
+        if slow_started_steps and optimiser.learning_rate == Optimiser().learning_rate:
+            rate = max(STARTED_LEARNING_RATE, optimiser.final_learning_rate)
+            settled = replace(settled, optimiser=replace(optimiser, learning_rate=rate))
     return settled
 
 

@@ -26,7 +26,7 @@ from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specim
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
 from .choices import choices
-from .config import REGULARISER_OPTIONS, TWO_STEP, OptimizeConfig
+from .config import LEARNING_RATE_OPTIONS, REGULARISER_OPTIONS, TWO_STEP, OptimizeConfig
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
@@ -61,6 +61,7 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     """
     base = options.pop("config", None)
     regulariser_given = bool(REGULARISER_OPTIONS & set(options))
+    rate_given = bool(LEARNING_RATE_OPTIONS & set(options))
     config = OptimizeConfig(**options) if base is None else replace(base, **options)
     if config.schedule.start is not None and Path(config.schedule.start).exists():
         # Recorded whole: the result and a resumed run name the same file wherever they are run from.
@@ -81,8 +82,10 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     low, high = specimen_bounds(shapes)
     aliasing = dataset.index.get("fringe_aliasing")
     aliased_share = aliasing["mean_fraction"] if aliasing else 0.0
-    asked, config = config, settle(config, high - low, aliased_share, ease_default_smoothness=not regulariser_given)
-    chosen = choices(asked, config, high - low, dataset, aliased_share)
+    pixels = max(dataset.resolution)
+    asked, config = config, settle(config, high - low, aliased_share, ease_default_smoothness=not regulariser_given,
+                                   slow_started_steps=not rate_given, pixels=pixels)
+    chosen = choices(asked, config, high - low, dataset, aliased_share, pixels)
     if progress:
         print("\n".join(chosen), flush=True)
     scale = stress_scale(media, low, high)
