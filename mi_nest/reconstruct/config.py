@@ -233,10 +233,11 @@ REGULARISER_OPTIONS = frozenset({"regulariser", *(f.name for f in fields(Regular
 # learned the field in that budget, and the smallest strayed least.
 MLP_OPTIMISER = Optimiser(learning_rate=1e-3, final_learning_rate=4e-5)
 # The learning rate of a run with a start field where none was given (fields.settle): a tenth of the descent's,
-# since the start is already near the answer and the descent's first steps threw it off. Three runs of ten minutes,
-# each against the descent's rate: the kitten in air from a model at 80% of its load 8.9% against 16.3%, from its
-# own reconstruction at a third of the load 14.8% against 17.6%, the 1 kN disk at 256 px from its reconstruction
-# at 100 N 4.7% against 5.3% (docs/reconstruction.md, "A start from a model of the part" and "A load series").
+# since the start is already near the answer and the descent's first steps threw it off. One run each against the
+# descent's rate: the kitten in air from a model at 80% of its load 8.9% against 16.3% (10 minutes), from its own
+# reconstruction at a third of the load 14.8% against 17.6%, the 1 kN disk at 256 px from its reconstruction at
+# 100 N 4.7% against 5.3% (6 minutes each), the 600 N disk from a model at 80% of its load 10.1% against 10.3%
+# (3 minutes; docs/reconstruction.md, "A start from a model of the part" and "A load series").
 STARTED_LEARNING_RATE = 5e-3
 # The options that give a run's learning rate: one given is the user's, even where it equals the default.
 LEARNING_RATE_OPTIONS = frozenset({"optimiser", "learning_rate"})
