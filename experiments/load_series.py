@@ -63,7 +63,9 @@ SERIES = {s.label: s for s in [
     # From 200 N the 256-px disk's low load ended at 15.3% (2% of its pixels aliased): a tenth of the load instead.
     Series("disk_1kN_256px", {"load": 100}, 10.0, name="disk_1kN_256px_from100N"),
     Series("kitten_air", {"fringe_value": 13500}, 1.0),
-    # A started kitten in air left its start at the descent's rate (docs/reconstruction.md, "A start from a model").
+    # A started kitten in air left its start at the descent's rate (docs/reconstruction.md, "A start from a model"):
+    # this case's rate is now every started run's default; the rows in results/load_series.csv before 2026-11-28's
+    # twelfth session ran at the descent's 0.05 (kitten_air: 17.6%).
     Series("kitten_air", {"fringe_value": 13500}, 1.0, name="kitten_air_rate0.005",
            started=("--option", "learning_rate=0.005")),
 ]}
