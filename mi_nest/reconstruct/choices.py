@@ -53,7 +53,7 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
             if pixels != DENSE_FRINGES_PIXELS:
                 scaled = share_at_reference(aliased_share, pixels)
                 why += (f" at {DENSE_FRINGES_PIXELS} across (about {100 * scaled:.0f}%; {100 * aliased_share:.0f}% "
-                        f"of these {pixels})")
+                        f"at {pixels})")
         else:
             why = (f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
                    f"{MIN_NODES_ACROSS} across the thinnest side")
