@@ -60,6 +60,19 @@ def test_the_penalty_s_gradient_is_its_finite_differences():
         assert gradient_mean[flat] == pytest.approx(expected, rel=2e-3, abs=1e-4)
 
 
+def test_cell_residuals_are_the_solve_s_residual_cell_by_cell():
+    """Their mean is the square of the RMS residual that the solve reports, and they scale as the deviator
+    squared (the mean stress is solved again for each deviator, not kept)."""
+    stencil, deviator, _ = _random_case(seed=3)
+    solver = equilibrium.MeanStressSolver(stencil)
+    squared = solver.cell_residuals(deviator, tolerance=1e-10)
+    _, rms = solver.solve(deviator, tolerance=1e-10)
+    assert squared.shape == (len(stencil.cells),)
+    assert squared.mean() == pytest.approx(rms ** 2, rel=1e-6)
+    np.testing.assert_allclose(solver.cell_residuals(3.0 * deviator, tolerance=1e-10), 9.0 * squared, rtol=1e-5,
+                               atol=1e-9)
+
+
 def _corners_inside(node_inside):
     n = node_inside
     return (n[:-1, :-1, :-1] & n[1:, :-1, :-1] & n[:-1, 1:, :-1] & n[:-1, :-1, 1:] & n[1:, 1:, :-1]

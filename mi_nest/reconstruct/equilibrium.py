@@ -232,6 +232,12 @@ class MeanStressSolver:
         left = unbalanced + self.gradient @ solution
         return mean.reshape(nz, ny, nx), float(np.sqrt(np.sum(left ** 2) / len(self.stencil.corners)))
 
+    def cell_residuals(self, deviator: np.ndarray, tolerance: float = PRACTICAL_TOLERANCE) -> np.ndarray:
+        """Each of the stencil's cells' squared residual ``|div(s) + grad(p)|^2`` (``stencil.cells`` order) with the
+        mean stress ``p`` that best balances ``deviator`` (nz, ny, nx, 5): where a field is out of balance."""
+        mean, _ = self.solve(deviator, tolerance=tolerance)
+        return np.sum(residual_numpy(deviator, mean, self.stencil) ** 2, axis=1)
+
 
 def _gradient_matrix(stencil: CellStencil):
     """The sparse (3 cells, nodes) operator of :func:`residual`'s ``grad(p)``, rows grouped by component."""

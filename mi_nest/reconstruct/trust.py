@@ -219,10 +219,8 @@ def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int
     if solver is None:
         solver = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, shape, field.bbox_min,
                                                                            field.bbox_max))
-    stencil = solver.stencil
-    mean, _ = solver.solve(deviator, tolerance=solver.PRACTICAL_TOLERANCE)
     cells = np.full((nz - 1, ny - 1, nx - 1), np.nan)
-    np.put(cells, stencil.cells, np.sqrt(np.sum(equilibrium.residual_numpy(deviator, mean, stencil) ** 2, axis=1)))
+    np.put(cells, solver.stencil.cells, np.sqrt(solver.cell_residuals(deviator)))
     # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
     padded = np.pad(cells, 1, constant_values=np.nan)
     corners = np.stack([padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
