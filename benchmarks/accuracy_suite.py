@@ -112,7 +112,7 @@ DIAGNOSTIC_CASES = [
           ("disk_600N", "disk_compression", {"load": 600, "contact_width": 4}, 180.0, 0.15, "the 600 N disk"))),
     Case("kitten_water_seed1", "kitten", {"fringe_value": 4500, "ior": 1.55, "ext_ior": 1.33},
          flags=("--option", "seed=1"), same_data_as="kitten_water",
-         note="diagnostic: the kitten in water with seed 1 (its run-to-run spread, 0.4 points over its target)"),
+         note="diagnostic: the kitten in water with seed 1 (its run-to-run spread about its 15% target)"),
     # Its fringes alias in 9.2% of the pixels, just under the 10% that chooses the dense-fringe settings.
     *(Case(f"kitten_water_{suffix}", "kitten", {"fringe_value": 4500, "ior": 1.55, "ext_ior": 1.33}, flags=flags,
            same_data_as="kitten_water", note=f"diagnostic: the kitten in water {what}")

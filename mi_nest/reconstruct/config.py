@@ -238,7 +238,7 @@ MLP_OPTIMISER = Optimiser(learning_rate=1e-3, final_learning_rate=4e-5)
 # reconstruction at a third of the load 14.8% against 17.6%, the 1 kN disk at 256 px from its reconstruction at
 # 100 N 4.7% against 5.3% (6 minutes each), the 600 N disk from a model at 80% of its load 10.1% against 10.3%
 # (3 minutes; docs/reconstruction.md, "A start from a model of the part" and "A load series"). Whole load series at
-# it: the 600 N disk 4.9%, the 300 N disk 4.7%, over 90 degrees 5.5% (5.6%, 4.7%, 5.6% at 0.05 a day before); the
+# it: the 600 N disk 4.9%, the 300 N disk 4.7%, over 90 degrees 5.5% (5.6%, 4.7%, 5.6% in earlier runs at 0.05); the
 # stacked disks 7.3% against 6.4% at 0.05 the same day, their start (19%) far from the answer, still descending.
 STARTED_LEARNING_RATE = 5e-3
 # The options that give a run's learning rate: one given is the user's, even where it equals the default.
