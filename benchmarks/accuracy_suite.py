@@ -13,7 +13,8 @@ is written to the CSV at once: an interrupted suite keeps what it did, and a rer
     python benchmarks/accuracy_suite.py --cases disk_100N,kitten --minutes 3
 
 Writes ``experiments/results/accuracy_suite[_quick].csv`` and ``.png`` (error against optimisation time, a line
-per case; ``--results`` elsewhere) and prints the table for docs/reconstruction.md, with the CPU.
+per case; ``--results`` elsewhere) and prints the table for docs/reconstruction.md, with the CPU; and, for the
+cases also run with another optimiser seed (``CASE_seed1``, diagnostics run by name), their run-to-run spread.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from reconstruction import cpu_name
@@ -135,6 +136,12 @@ DIAGNOSTIC_CASES = [
            note=f"diagnostic: the stacked disks in three narrow bands with seed {seed} (their run-to-run spread)")
       for seed in (1, 2)),
 ]
+# Every other yardstick case once more with seed 1 on its own data: its run-to-run spread, which a change must beat.
+SEEDED = {"stacked_disks", "kitten_water"}      # their seed cases are above, with their own notes
+DIAGNOSTIC_CASES += [replace(case, name=f"{case.name}_seed1", flags=(*case.flags, "--option", "seed=1"),
+                             same_data_as=case.same_data_as or case.name,
+                             note=f"diagnostic: {case.note}, with seed 1 (its run-to-run spread)")
+                     for case in CASES if case.name not in SEEDED]
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
 
@@ -240,6 +247,29 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def seed_of(row: dict) -> int:
+    """The optimiser's seed a row's run was given (0 where none was)."""
+    flags = row["flags"].split()
+    return next((int(value.split("=")[1]) for name, value in zip(flags, flags[1:])
+                 if name == "--option" and value.startswith("seed=")), 0)
+
+
+def spread(rows: list[dict]) -> str:
+    """A table of every yardstick case run with more than one seed: the errors by seed and their range, the
+    run-to-run spread a change on that case must beat."""
+    lines = ["| case | errors by seed | spread | iterations |", "|---|---|---:|---|"]
+    for case in CASES:
+        runs = sorted(((seed_of(r), r) for r in rows
+                       if r["case"] == case.name or r["case"].startswith(f"{case.name}_seed")), key=lambda run: run[0])
+        if len({seed for seed, _ in runs}) < 2:
+            continue
+        errors = [100 * float(r["deviatoric_error"]) for _, r in runs]
+        by_seed = ", ".join(f"{error:.1f}% (seed {seed})" for error, (seed, _) in zip(errors, runs))
+        iterations = ", ".join(f"{int(r['iterations']):,}" for _, r in runs)
+        lines.append(f"| {case.name} | {by_seed} | {max(errors) - min(errors):.2f} points | {iterations} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="6x6 rotations at 32 px, 10 s each")
@@ -287,6 +317,8 @@ def main():
         chart({row["case"]: history(args.data / label / row["case"]) for row in rows}, args.results / f"{label}.png",
               f"accuracy suite{' (quick)' if args.quick else ''}: {minutes:g} min per case, {cpu_name()}")
         print(table(rows))
+        if spread(rows):
+            print("\nRun-to-run spread (the same case and data, other seeds):", spread(rows), sep="\n")
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ whether the results agree). The figures say nothing at these sizes.
 
 Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's kernel cache warm, in seconds:
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
-dataset 8.2, accuracy_suite 7.4, separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
+dataset 8.2, accuracy_suite 9.5 (two cases), separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
 grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6: 161 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
 refraction took 31 s). None is marked slow: the module fits in the default run.
@@ -55,11 +55,13 @@ def _finished_reconstruction(tmp_path: Path) -> Path:
 # Per script: its arguments ({tmp}: pytest's tmp_path, {root}: this checkout), the lines its output must have
 # (regular expressions, each matched against a whole line) and the files it must write under {tmp}.
 CASES = {
-    "accuracy_suite": (["--quick", "--cases", "disk_100N", "--minutes", "0.02", "--data", "{tmp}/suite",
-                        "--results", "{tmp}/results"],
+    "accuracy_suite": (["--quick", "--cases", "disk_100N,disk_100N_seed1", "--minutes", "0.02", "--data",
+                        "{tmp}/suite", "--results", "{tmp}/results"],
                        [r"disk_100N: [\d.]+% in [\d.]+ s \(\d+ iterations, grid .*; target 5%: (yes|no)\)",
                         r"\| case \| data \| options \| time \| iterations \| deviatoric error \|.*",
-                        r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*"],
+                        r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*",
+                        r"\| disk_100N \| [\d.]+% \(seed 0\), [\d.]+% \(seed 1\) \| [\d.]+ points \| "
+                        r"[\d,]+, [\d,]+ \|"],
                        ["results/accuracy_suite_quick.csv", "results/accuracy_suite_quick.png"]),
     "bands": (["--levels", "300", "--seeds", "0", "--minutes", "0.02", "--res", "8", "--data", "{tmp}/data",
                "--results", "{tmp}/results"],
