@@ -317,8 +317,9 @@ def main():
         chart({row["case"]: history(args.data / label / row["case"]) for row in rows}, args.results / f"{label}.png",
               f"accuracy suite{' (quick)' if args.quick else ''}: {minutes:g} min per case, {cpu_name()}")
         print(table(rows))
-        if spread(rows):
-            print("\nRun-to-run spread (the same case and data, other seeds):", spread(rows), sep="\n")
+        seeds = spread(rows)
+        if seeds:
+            print("\nRun-to-run spread (the same case and data, other seeds):", seeds, sep="\n")
 
 
 if __name__ == "__main__":

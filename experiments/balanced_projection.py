@@ -27,10 +27,8 @@ import scipy.sparse.linalg
 from scipy.spatial import cKDTree
 
 import mi_nest  # noqa: F401  (sets the variant)
-from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction, metrics
-from mi_nest.scene import scene_field, specimen_shapes
+from mi_nest.scene import specimen_shapes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from reconstruction import cpu_name  # noqa: E402
@@ -115,10 +113,7 @@ def projected(directory: Path, iterations: int, padding: int) -> list[dict]:
     field = result.field
     if field.kind != "grid":
         raise SystemExit(f"{directory}: a {field.kind} field; only grids are projected")
-    dataset = Dataset(result.source["dataset"])
-    source = dataset.index.get("source") or {}
-    scene = recorded_scene(source).load()
-    truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
+    _, scene, truth = common.simulated_from(result)
     shapes = specimen_shapes(scene)
     points = metrics.evaluation_points(scene, shapes)
     error_of = metrics.ErrorProbe(truth, points)

@@ -33,11 +33,9 @@ import common
 import numpy as np
 
 import mi_nest  # noqa: F401  (sets the variant)
-from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction, equilibrium, metrics
 from mi_nest.reconstruct.evaluation import SampledViewLoss
-from mi_nest.scene import scene_field, specimen_shapes
+from mi_nest.scene import specimen_shapes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from reconstruction import cpu_name  # noqa: E402
@@ -57,10 +55,7 @@ def landscape(directory: Path, views: int, samples: int) -> tuple[list[dict], st
     field = result.field
     if field.kind != "grid":
         raise SystemExit(f"{directory}: a {field.kind} field; the line to the truth is drawn between grids only")
-    dataset = Dataset(result.source["dataset"])
-    source = dataset.index.get("source") or {}
-    scene = recorded_scene(source).load()
-    truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
+    dataset, scene, truth = common.simulated_from(result)
     shapes = specimen_shapes(scene)
     start = time.perf_counter()
     points = metrics.evaluation_points(scene, shapes)
