@@ -27,6 +27,8 @@ import scipy.sparse.linalg
 from scipy.spatial import cKDTree
 
 import mi_nest  # noqa: F401  (sets the variant)
+from mi_nest.io.grid import grid_nodes
+from mi_nest.physics.tensors import stress_matrices
 from mi_nest.reconstruct import Reconstruction, metrics
 from mi_nest.scene import specimen_shapes
 
@@ -43,8 +45,7 @@ def tensors(nodes: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
     """``(nz, ny, nx, 3, 3)`` deviators of a grid's stored nodes (``xx, yy, yz, zx, xy``, x fastest)."""
     nx, ny, nz = shape
     xx, yy, yz, zx, xy = np.moveaxis(nodes.reshape(nz, ny, nx, 5), -1, 0)
-    return np.stack([np.stack([xx, xy, zx], -1), np.stack([xy, yy, yz], -1),
-                     np.stack([zx, yz, -(xx + yy)], -1)], -2)
+    return stress_matrices(np.stack([xx, yy, -(xx + yy), yz, zx, xy], -1))
 
 
 def stored(deviators: np.ndarray) -> np.ndarray:
@@ -120,9 +121,7 @@ def projected(directory: Path, iterations: int, padding: int) -> list[dict]:
     best = metrics.fitted_nodes(field, truth, metrics.evaluation_points(scene, shapes, 3 * metrics.EVALUATION_POINTS))
     nx, ny, nz = field.shape
     spacing = (field.bbox_max - field.bbox_min) / (np.array(field.shape) - 1)
-    axes = [np.linspace(field.bbox_min[i], field.bbox_max[i], field.shape[i]) for i in range(3)]
-    z, y, x = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
-    distance_to_part = cKDTree(points).query(np.stack([x, y, z], -1).reshape(-1, 3))[0]
+    distance_to_part = cKDTree(points).query(grid_nodes(field.bbox_min, field.bbox_max, field.shape))[0]
     projection = BalancedProjection((distance_to_part < spacing.max()).reshape(nz, ny, nx), spacing, padding)
 
     def error(nodes):
