@@ -164,8 +164,9 @@ def _parser():
                              help="optimise for this long; the learning rate and the coarse-to-fine stages then "
                                   "follow the clock (with --iterations too, whichever ends first)")
     reconstruct.add_argument("--resolution", type=int,
-                             help="grid nodes along the longest axis (default: 32, 48 or 64, the coarsest that puts "
-                                  "10 nodes across the specimen's thinnest side)")
+                             help="nodes along the longest axis of the grid, or of the lattice a hash grid or MLP is "
+                                  "sampled on (default: 32, 48 or 64, the coarsest that puts 10 nodes across the "
+                                  "specimen's thinnest side; 0: a network evaluated at every step, as NeST does)")
     reconstruct.add_argument("--fast", action="store_true",
                              help="the defaults' schedule about 3x faster, ending about 0.1 to 0.2 points of stress "
                                   "error above them (FAST_OPTIONS: 10,800 iterations of 1,024 pixels, 70%% of them "

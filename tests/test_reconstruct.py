@@ -13,6 +13,7 @@ from mi_nest import occupancy
 from mi_nest.cli import main
 from mi_nest.dataset import simulate
 from mi_nest.fields import UniformField
+from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import (NO_REGULARISER, REGULARISED, DivergenceError, FieldConfig, OptimizeConfig,
                                  Reconstruction, Regulariser, make_field, optimize)
 from mi_nest.reconstruct import loop, metrics
@@ -82,6 +83,37 @@ def test_fields_are_trace_free_and_survive_a_save(kind, tmp_path):
     assert loaded.field.describe() == field.describe()
 
 
+@pytest.mark.parametrize("kind", ["hashgrid", "mlp"])
+def test_a_network_sampled_on_a_lattice_is_the_network_at_its_nodes_and_trilinear_between(kind):
+    config = FieldConfig(kind=kind, resolution=5, levels=2, hashmap_size=256, width=8, layers=1, octaves=2)
+    sampled, every_step = (make_field(c, (-1, -2, -3), (1, 2, 3), 2.5) for c in (config, replace(config, resolution=0)))
+    rng = np.random.default_rng(4)
+    values = {n: type(v)(rng.normal(size=v.shape).astype(np.float32)) for n, v in sampled.parameters().items()}
+    sampled.assign(values)
+    every_step.assign(values)
+    assert (sampled.lattice, every_step.lattice, every_step.shape) == (True, False, None)
+    nodes = grid_nodes(sampled.bbox_min, sampled.bbox_max, sampled.shape)
+    exact = metrics.sample(every_step, nodes)
+    np.testing.assert_allclose(metrics.sample(sampled, nodes), exact, atol=1e-5 * np.abs(exact).max())
+    # Halfway between neighbouring nodes along each axis: their mean, where the network itself is not.
+    nx, ny, nz = sampled.shape
+    on_lattice, at_nodes = nodes.reshape(nz, ny, nx, 3), exact.reshape(nz, ny, nx, 6)
+    for axis in (2, 1, 0):
+        ends = [np.take(a, range(e, a.shape[axis] - 1 + e), axis=axis).reshape(-1, a.shape[-1])
+                for a in (on_lattice, at_nodes) for e in (0, 1)]
+        middle = metrics.sample(sampled, (ends[0] + ends[1]) / 2)
+        np.testing.assert_allclose(middle, (ends[2] + ends[3]) / 2, atol=1e-5 * np.abs(exact).max())
+        assert np.abs(metrics.sample(every_step, (ends[0] + ends[1]) / 2) - middle).max() > 1e-3
+    # A finer stage samples the same network on more nodes: the parameters are untouched.
+    before = {n: np.array(v) for n, v in sampled.parameters().items()}
+    sampled.sample_on(9)
+    finer = grid_nodes(sampled.bbox_min, sampled.bbox_max, sampled.shape)
+    assert sampled.shape == grid_shape(9, (2, 4, 6)) and sampled.config.resolution == 9
+    assert all(np.array_equal(np.array(v), before[n]) for n, v in sampled.parameters().items())
+    np.testing.assert_allclose(metrics.sample(sampled, finer), metrics.sample(every_step, finer),
+                               atol=1e-5 * np.abs(exact).max())
+
+
 @pytest.mark.parametrize("kind", ["grid", "hashgrid", "mlp"])
 def test_fields_stay_bounded_a_hair_outside_their_box(kind):
     """Samples on a specimen's surface can round outside the bounding box (the hash encoding then read
@@ -116,10 +148,11 @@ def test_the_defaults_settle_on_a_specimen():
     """The kind, the resolution and the regulariser a run records are what it did, never 'auto'."""
     settled = settle(OptimizeConfig(), np.array([40.0, 40.0, 6.0]))
     assert (settled.field.kind, settled.field.resolution, settled.regulariser) == ("grid", 64, REGULARISED)
-    # Too many nodes for a grid: a hash grid, and the grids' regulariser is not carried over to it.
+    # Too many nodes for a grid: a hash grid evaluated at every step (a lattice as large would not fit either), and
+    # the grids' regulariser is not carried over to it.
     large = settle(OptimizeConfig(resolution=256), np.array([40.0, 40.0, 40.0]))
-    assert (large.field.kind, large.regulariser) == ("hashgrid", NO_REGULARISER)
-    with pytest.raises(ValueError, match="acts on grids only"):
+    assert (large.field.kind, large.field.resolution, large.regulariser) == ("hashgrid", 0, NO_REGULARISER)
+    with pytest.raises(ValueError, match="evaluated at every step"):
         settle(OptimizeConfig(resolution=256, smoothness=1e-3), np.array([40.0, 40.0, 40.0]))
     assert settle(OptimizeConfig(resolution=20), np.array([40.0, 40.0, 6.0])).field.resolution == 20
     # The stacked disks' box: 32 nodes put 11 across its 12 mm; fringes aliased in 19% of the pixels ask for 64,
@@ -141,7 +174,13 @@ def test_the_defaults_settle_on_a_specimen():
     assert settle(OptimizeConfig(), stacked, aliased_share=0.19, pixels=8).field.resolution == 64
     assert settle(OptimizeConfig(regulariser=NO_REGULARISER), stacked, 0.19).regulariser == NO_REGULARISER
     assert settle(OptimizeConfig(smoothness=2e-4), stacked, 0.19).regulariser.relative_to == 1.0
-    assert OptimizeConfig(kind="mlp").regulariser == NO_REGULARISER
+    # A network sampled on a lattice takes the grids' regulariser; evaluated at every step, none.
+    assert OptimizeConfig(kind="mlp").regulariser == OptimizeConfig(kind="hashgrid").regulariser == REGULARISED
+    assert OptimizeConfig(kind="mlp", resolution=0).regulariser == NO_REGULARISER
+    network = settle(OptimizeConfig(kind="hashgrid"), np.array([40.0, 40.0, 6.0]))
+    assert (network.field.kind, network.field.resolution, network.regulariser) == ("hashgrid", 64, REGULARISED)
+    with pytest.raises(ValueError, match="resolution must be at least 2"):
+        OptimizeConfig(kind="grid", resolution=0)
     # The MLP's own steps (the grids' ran it away); a learning rate given is kept, and a saved run reloads as run.
     from mi_nest.reconstruct.config import MLP_OPTIMISER, Optimiser
     assert OptimizeConfig(kind="mlp").optimiser == MLP_OPTIMISER
@@ -150,7 +189,8 @@ def test_the_defaults_settle_on_a_specimen():
     assert OptimizeConfig(kind="grid").optimiser == OptimizeConfig(kind="hashgrid").optimiser == Optimiser()
     mlp = OptimizeConfig(kind="mlp", seed=2)
     assert OptimizeConfig.from_dict(mlp.to_dict()) == mlp and mlp.settled("mlp", 32).optimiser == mlp.optimiser
-    assert OptimizeConfig(kind="mlp", average_last=0.2).regulariser == replace(NO_REGULARISER, average_last=0.2)
+    assert OptimizeConfig(kind="mlp", resolution=0, average_last=0.2).regulariser == replace(NO_REGULARISER,
+                                                                                              average_last=0.2)
     assert OptimizeConfig(kind="grid", smoothness=0.0).regulariser == replace(REGULARISED, smoothness=0.0)
 
 
@@ -232,8 +272,9 @@ def test_smoothness_holds_through_the_coarse_stages_and_decays_geometrically_ove
     assert weights[75] == pytest.approx(1e-3) and weights[100] == pytest.approx(1e-4)
     assert Regulariser(smoothness=1e-2).smoothness_at(0.7) == 1e-2
     for kind in ("hashgrid", "mlp"):
-        with pytest.raises(ValueError, match="grids only"):
-            OptimizeConfig(kind=kind, smoothness=1e-2)
+        OptimizeConfig(kind=kind, smoothness=1e-2)      # smoothed on the lattice they are sampled on
+        with pytest.raises(ValueError, match="evaluated at every step"):
+            OptimizeConfig(kind=kind, resolution=0, smoothness=1e-2)
     for final in (0.0, 2e-2):
         with pytest.raises(ValueError, match="final_smoothness"):
             Regulariser(smoothness=1e-2, final_smoothness=final)
@@ -589,16 +630,20 @@ def test_cli_defaults_to_the_targets_regulariser_and_options_override_it(tiny_da
     assert config("grid")["regulariser"]["average_last"] == REGULARISED.average_last
     assert main([*common, "--no-regulariser", "-o", str(tmp_path / "plain")]) == 0
     assert Regulariser(**config("plain")["regulariser"]) == NO_REGULARISER
-    # Other representations have no smoothness: the default leaves it out, a smoothness asked for is refused.
+    # A network sampled on a lattice is smoothed there as a grid is; evaluated at every step it has no smoothness:
+    # the default leaves it out, a smoothness asked for is refused.
     assert main([*networks, "--kind", "mlp", "-o", str(tmp_path / "mlp")]) == 0
-    assert Regulariser(**config("mlp")["regulariser"]) == NO_REGULARISER
+    assert Regulariser(**config("mlp")["regulariser"]) == DENSE_REGULARISED
+    assert main([*networks, "--kind", "mlp", "--resolution", "0", "-o", str(tmp_path / "mlp_steps")]) == 0
+    assert Regulariser(**config("mlp_steps")["regulariser"]) == NO_REGULARISER
     capsys.readouterr()
-    assert main([*networks, "--kind", "mlp", "--option", "smoothness=1e-3", "-o", str(tmp_path / "refused")]) == 2
-    assert "acts on grids only" in capsys.readouterr().err
+    assert main([*networks, "--kind", "mlp", "--resolution", "0", "--option", "smoothness=1e-3",
+                 "-o", str(tmp_path / "refused")]) == 2
+    assert "evaluated at every step (resolution=0): give a resolution" in capsys.readouterr().err
     # Another kind's options would be dropped without a word: they are refused, naming whose they are.
     assert main([*common, "--kind", "mlp", "--option", "levels=4", "-o", str(tmp_path / "refused")]) == 2
-    assert ("a 'mlp' field does not read 'levels' (hashgrid's), 'resolution' (grid's); leave them out, or give "
-            "kind=grid or hashgrid") in capsys.readouterr().err
+    assert ("a 'mlp' field does not read 'levels' (hashgrid's); leave it out, or give kind=hashgrid"
+            in capsys.readouterr().err)
     for option, message in (("smoothnes=1", "unknown option 'smoothnes'; the options are average_last, "),
                             ("batch_size=6.5", "option 'batch_size' takes an integer, got '6.5'")):
         assert main([*common, "--option", option, "-o", str(tmp_path / "bad")]) == 2

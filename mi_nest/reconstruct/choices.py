@@ -7,7 +7,7 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..tracer.registry import METHODS as TRACER_METHODS
-from .kinds import AUTO, kind_named
+from .kinds import AUTO, GRID
 from .config import DENSE_REGULARISED, FORWARD_MODELS, NO_REGULARISER, REGULARISED, TWO_STEP, OptimizeConfig
 from .fields import (DEFAULT_RESOLUTIONS, DENSE_FRINGES_PIXELS, DENSE_FRINGES_SHARE, GRID_NODE_LIMIT,
                      MIN_NODES_ACROSS, dense_fringes, grid_shape, share_at_reference)
@@ -42,8 +42,7 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
     """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`, which
     was given the same ``extent``, ``aliased_share`` and ``pixels``)."""
     field = settled.field
-    lattice = kind_named(field.kind).lattice
-    if lattice:
+    if field.on_lattice:
         nx, ny, nz = grid_shape(field.resolution, extent)
         if asked.field.resolution is not None:
             why = "--resolution"
@@ -57,15 +56,18 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
         else:
             why = (f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
                    f"{MIN_NODES_ACROSS} across the thinnest side")
-        representation = f"grid {nx}x{ny}x{nz} ({why})"
+        lattice = f"{nx}x{ny}x{nz} ({why})"
+    if field.kind == GRID.name:
+        representation = f"grid {lattice}"
     else:
         why = ("--kind" if asked.field.kind != AUTO.name else
-               f"a grid at {field.resolution} nodes would pass {GRID_NODE_LIMIT:,} nodes")
-        representation = f"{field.kind} ({why})"
+               f"a grid at {asked.field.resolution} nodes would pass {GRID_NODE_LIMIT:,} nodes")
+        representation = f"{field.kind} ({why}), " + (f"sampled once an iteration on a lattice {lattice}"
+                                                      if field.on_lattice else "evaluated at every step")
     if settled.model.step_size is not None:
         step = f"{settled.model.step_size:g} mm steps"
     else:
-        step = "steps of half the node spacing" if lattice else "steps of the box / 64"
+        step = "steps of half the node spacing" if field.on_lattice else "steps of the box / 64"
     regulariser = settled.regulariser
     if regulariser == REGULARISED:
         smoothing = ("the targets' smoothness, eased above a field RMS of "

@@ -127,7 +127,9 @@ class FieldConfig:
     (:func:`mi_nest.reconstruct.fields.choose_kind`), ``resolution=None`` one for the specimen's shape
     (:func:`mi_nest.reconstruct.fields.default_resolution`); ``optimize`` records what they became."""
     kind: str = AUTO.name             # a name of kinds.KINDS, or auto
-    resolution: int | None = None    # grid: nodes along the longest axis
+    # Nodes along the longest axis of a grid, or of the lattice a network is sampled on (0: a network evaluated at
+    # every step, as NeST does).
+    resolution: int | None = None
     levels: int = 8                  # hashgrid
     features_per_level: int = 2      # hashgrid
     hashmap_size: int = 2 ** 15      # hashgrid: entries per level
@@ -143,9 +145,19 @@ class FieldConfig:
         for name in ("levels", "features_per_level", "hashmap_size", "base_resolution", "width", "layers", "octaves"):
             whole_number(name, getattr(self, name))
         if self.resolution is not None:
-            whole_number("resolution", self.resolution)
-        if self.resolution is not None and self.resolution < 2:
-            raise ValueError(f"grid resolution must be at least 2, got {self.resolution}")
+            whole_number("resolution", self.resolution, minimum=0)
+        if self.resolution == 0 and kind_named(self.kind).trains_nodes:
+            raise ValueError(f"a {self.kind} field's resolution must be at least 2 nodes (0, a network evaluated at "
+                             "every step, is for kind=hashgrid or mlp)")
+        if self.resolution is not None and self.resolution != 0 and self.resolution < 2:
+            raise ValueError(f"resolution must be at least 2 nodes (or 0: a network evaluated at every step), got "
+                             f"{self.resolution}")
+
+    @property
+    def on_lattice(self) -> bool:
+        """Whether the rays march through values at the nodes of a lattice (a grid, or a network sampled on one):
+        refined coarse to fine, smoothed by its gradients, in steps of half its spacing."""
+        return self.resolution != 0
 
 
 @dataclass(frozen=True)
@@ -281,9 +293,10 @@ class OptimizeConfig:
     def __init__(self, **options):
         """Groups given whole by name, then flat options by their own names, which override them; a name
         that several groups share (``seed``) sets it in each. Unknown names are refused. The regulariser
-        defaults to :data:`REGULARISED` for grids (and ``kind="auto"``) and to :data:`NO_REGULARISER` for hash
-        grids and MLPs: :data:`REGULARISED` with either means the plain fit, so a configuration can change
-        its kind. Likewise the optimiser defaults to :data:`MLP_OPTIMISER`'s learning rates for MLPs."""
+        defaults to :data:`REGULARISED` on a lattice (grids, ``kind="auto"``, and networks sampled on one) and to
+        :data:`NO_REGULARISER` for networks evaluated at every step (``resolution=0``): :data:`REGULARISED` with
+        those means the plain fit, so a configuration can change its kind. Likewise the optimiser defaults to
+        :data:`MLP_OPTIMISER`'s learning rates for MLPs."""
         groups = get_type_hints(OptimizeConfig)
         names = {name: {f.name for f in fields(group)} for name, group in groups.items()}
         unknown = sorted(set(options) - set(groups) - set().union(*names.values()))
@@ -294,7 +307,7 @@ class OptimizeConfig:
         for name in sorted(groups, key=lambda name: name != "field"):
             group, given = groups[name], options.get(name)
             if name == "regulariser" and given in (None, REGULARISED):
-                given = REGULARISED if kind_named(self.field.kind).lattice else NO_REGULARISER
+                given = REGULARISED if self.field.on_lattice else NO_REGULARISER
             elif name == "optimiser" and self.field.kind == MLP.name and given in (None, Optimiser()):
                 given = MLP_OPTIMISER
             elif given is None:
@@ -322,8 +335,8 @@ class OptimizeConfig:
         if self.schedule.warm_start and self.model.method == TWO_STEP:
             raise ValueError("'warm_start' starts a joint fit (product, magnus4, linear) from the Two-step fit; "
                              "method 'two-step' is that fit already")
-        lattice = kind_named(self.field.kind).lattice
-        if self.schedule.start is not None and not lattice:
+        trains_nodes = kind_named(self.field.kind).trains_nodes
+        if self.schedule.start is not None and not trains_nodes:
             raise ValueError(f"a start field is fitted by grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or drop start)")
         if self.schedule.start is not None and self.schedule.warm_start:
@@ -331,14 +344,14 @@ class OptimizeConfig:
         if self.schedule.start is None and self.schedule.start_load_ratio != 1.0:
             raise ValueError("'start_load_ratio' scales a start field, and no start is given (give start, or drop "
                              "start_load_ratio)")
-        if not lattice and self.regulariser.equilibrium:
+        if not trains_nodes and self.regulariser.equilibrium:
             raise ValueError(f"the equilibrium prior acts on grids only, and this field is a '{self.field.kind}' "
                              "(give kind='grid', or equilibrium=0)")
-        if not lattice and self.regulariser.acts_on_gradients():
+        if not self.field.on_lattice and self.regulariser.acts_on_gradients():
             # Silently ignored, a regulariser the user asked for would leave them comparing unlike runs.
-            raise ValueError(f"the smoothness regulariser acts on grids only, and this field is a "
-                             f"'{self.field.kind}' (give kind='grid', or drop smoothness, final_smoothness and "
-                             "smoothness_edge)")
+            raise ValueError(f"the smoothness regulariser acts on a lattice's nodes, and this '{self.field.kind}' "
+                             "field is evaluated at every step (resolution=0): give a resolution, or drop "
+                             "smoothness, final_smoothness and smoothness_edge")
 
     def settled(self, kind: str, resolution: int) -> OptimizeConfig:
         """This configuration with the field's kind and resolution decided (what a run records)."""

@@ -90,7 +90,8 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
     """
     if config.kind != AUTO.name:
         return config.kind
-    nodes = np.prod(grid_shape(config.resolution or default_resolution(extent), extent))
+    resolution = default_resolution(extent) if config.resolution is None else config.resolution
+    nodes = np.prod(grid_shape(resolution, extent))
     return GRID.name if nodes <= GRID_NODE_LIMIT else HASHGRID.name
 
 
@@ -103,12 +104,18 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
     ``ease_default_smoothness`` is off: the user gave it). A run with a start field has one stage, and the default
     learning rate becomes :data:`~.config.STARTED_LEARNING_RATE` (unless ``slow_started_steps`` is off: the user
     gave one)."""
-    resolution = config.field.resolution or default_resolution(extent, aliased_share, pixels)
-    settled = config.settled(choose_kind(replace(config.field, resolution=resolution), extent), resolution)
+    resolution = config.field.resolution
+    if resolution is None:
+        resolution = default_resolution(extent, aliased_share, pixels)
+    kind = choose_kind(replace(config.field, resolution=resolution), extent)
+    if config.field.kind == AUTO.name and kind != GRID.name:
+        # Chosen for a grid too large to hold: a lattice as large would be too.
+        resolution = 0
+    settled = config.settled(kind, resolution)
     if ease_default_smoothness and dense_fringes(aliased_share, pixels) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     if settled.schedule.start is not None:
-        if not KINDS[settled.field.kind].lattice:
+        if not KINDS[settled.field.kind].trains_nodes:
             raise ValueError(f"a start field is fitted by grids only, and a grid at {resolution} nodes would be too "
                              f"large here (auto chose '{settled.field.kind}'): give a lower --resolution")
         # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
@@ -132,8 +139,9 @@ class TrainableField(StressField):
 
     @property
     def lattice(self) -> bool:
-        """Whether its parameters are nodes on a lattice (:class:`~.kinds.FieldKind`)."""
-        return KINDS[self.kind].lattice
+        """Whether the rays march through values at the nodes of a lattice (``shape``): a grid, or a network
+        sampled on one (:attr:`~.config.FieldConfig.on_lattice`)."""
+        return self.config.on_lattice
 
     def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
         self.config = config                                # what the run recorded
@@ -165,6 +173,10 @@ class TrainableField(StressField):
 
     def assign(self, values: dict) -> None:
         raise NotImplementedError
+
+    def finish_backward(self) -> None:
+        """Carry into the parameters the gradients that the rays and the penalties left on values computed from
+        them (a network's lattice samples); called once an iteration, after every backward pass."""
 
     def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
         """``weight`` times the mean squared gradient, growing only linearly above the gradient ``edge``
@@ -357,11 +369,95 @@ def _network(options, inputs, hidden_layers, encoding=None):
 
 
 class _NeuralField(TrainableField):
+    """A network of the position; with a resolution, sampled once an iteration at the nodes of a lattice
+    (:attr:`samples`, a :class:`DeviatoricGrid`) that the rays then march through as through a grid's: a lookup per
+    step instead of the network's evaluation and its backward pass, on the grid's coarse-to-fine stages and
+    regulariser. The network's parameters stay what is trained; their gradient is the lattice's, carried back
+    through the samples (:meth:`finish_backward`)."""
+
+    def __init__(self, config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float):
+        super().__init__(config, bbox_min, bbox_max, stress_scale)
+        self.samples = None
+        self._sampled = None    # the samples as computed from the parameters (their graph), flat
+        self._positions = None
+
+    def _lattice_for(self, resolution: int) -> None:
+        config = replace(self.config, kind=GRID.name, resolution=resolution)
+        self.samples = DeviatoricGrid(config, self.bbox_min, self.bbox_max, self.stress_scale)
+        self._positions = mi.Point3f(grid_nodes(self.bbox_min, self.bbox_max, self.samples.shape).T
+                                     .astype(np.float32))
+
+    def sample_on(self, resolution: int) -> None:
+        """Sample the network on a lattice of ``resolution`` nodes along the longest axis from now on (coarse to
+        fine: the parameters, and an optimiser's moments, carry over)."""
+        self.config = replace(self.config, resolution=int(resolution))
+        self.options = KINDS[self.kind].options.of(self.config)
+        self._lattice_for(self.options.resolution)
+        self._sample()
+
+    @property
+    def shape(self) -> tuple[int, int, int] | None:
+        """``(nx, ny, nz)`` of the lattice it is sampled on (None: evaluated at every step)."""
+        return None if self.samples is None else self.samples.shape
+
+    @property
+    def texture(self) -> mi.Texture3f:
+        """The lattice's samples, as a grid holds its nodes."""
+        return self.samples.texture
+
+    def nodes(self) -> np.ndarray:
+        return self.samples.nodes()
+
+    def rms(self) -> float:
+        return self.samples.rms()
+
+    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
+        return self.network(p) if self.samples is None else self.samples.deviatoric(p)
+
+    def network(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
+        """The network's five components at ``p`` (stress scales)."""
+        raise NotImplementedError
+
     def _evaluate(self, features):
         return tuple(mi.Float(x) for x in self.net(nn.CoopVec(*features)))
 
     def assign(self, values: dict) -> None:
         self.net["weights"] = values["weights"]
+        self._sample()
+
+    def _sample(self) -> None:
+        if self.options.resolution == 0:
+            return
+        if self.samples is None:
+            self._lattice_for(self.options.resolution)
+        with dr.resume_grad():
+            values = self.network(self._positions)
+            count = dr.width(values[0])
+            sampled = dr.zeros(mi.Float, 5 * count)
+            node = dr.arange(mi.UInt32, count)
+            for component, value in enumerate(values):
+                dr.scatter(sampled, value, 5 * node + component)
+        nodes = mi.Float(dr.detach(sampled))
+        dr.eval(nodes)
+        self._sampled = sampled if dr.grad_enabled(sampled) else None
+        if self._sampled is not None:
+            # The march's and the penalties' gradients collect here, to go back through the network at once.
+            dr.enable_grad(nodes)
+        nx, ny, nz = self.samples.shape
+        self.samples.assign({"grid": mi.TensorXf(nodes, (nz, ny, nx, 5))})
+
+    def finish_backward(self) -> None:
+        if self._sampled is None:
+            return
+        gradient = dr.grad(self.samples.texture.tensor().array)
+        with dr.resume_grad():
+            dr.backward_from(dr.sum(self._sampled * gradient))
+
+    def smoothness_penalty(self, weight: float, edge: float | None = None) -> mi.Float | None:
+        return None if self.samples is None else self.samples.smoothness_penalty(weight, edge)
+
+    def _sampled_on(self) -> str:
+        return "" if self.samples is None else f", sampled on {'x'.join(map(str, self.samples.shape))} nodes"
 
 
 class MLPField(_NeuralField):
@@ -373,15 +469,16 @@ class MLPField(_NeuralField):
         # Shifted octaves keep the encoding's extrema off a common lattice.
         options = self.options
         self.net = _network(options, 3, options.layers, nn.SinEncode(options.octaves, shift=0.25))
+        self._sample()
 
-    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
+    def network(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         return self._evaluate(self.unit_coordinates(p))
 
     def parameters(self) -> dict:
         return {"weights": self.net["weights"]}
 
     def describe(self) -> str:
-        return f"mlp {self.options.layers}x{self.options.width}, {self.options.octaves} octaves"
+        return f"mlp {self.options.layers}x{self.options.width}, {self.options.octaves} octaves{self._sampled_on()}"
 
 
 class HashGridField(_NeuralField):
@@ -396,8 +493,9 @@ class HashGridField(_NeuralField):
             hashmap_size=options.hashmap_size, base_resolution=options.base_resolution,
             per_level_scale=options.level_scale, init_scale=1e-2, rng=dr.rng(seed=options.seed + 1))
         self.net = _network(options, options.levels * options.features_per_level, 1)
+        self._sample()
 
-    def deviatoric(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
+    def network(self, p: mi.Point3f) -> tuple[mi.Float, ...]:
         # The encoding reads outside its tables for coordinates outside [0, 1] (values of 1e26 seen), and
         # samples on the specimen's surface can round a hair outside the bounding box.
         return self._evaluate(self.encoding(dr.clip(self.unit_coordinates(p), 0.0, 1.0)))
@@ -411,7 +509,7 @@ class HashGridField(_NeuralField):
 
     def describe(self) -> str:
         return (f"hashgrid {self.options.levels} levels x {self.options.features_per_level} features, "
-                f"2^{int(np.log2(self.options.hashmap_size))} entries")
+                f"2^{int(np.log2(self.options.hashmap_size))} entries{self._sampled_on()}")
 
 
 FIELDS = {cls.kind: cls for cls in (DeviatoricGrid, HashGridField, MLPField)}
@@ -419,7 +517,8 @@ FIELDS = {cls.kind: cls for cls in (DeviatoricGrid, HashGridField, MLPField)}
 
 def make_field(config: FieldConfig, bbox_min: np.ndarray, bbox_max: np.ndarray, stress_scale: float) -> TrainableField:
     extent = np.asarray(bbox_max) - np.asarray(bbox_min)
-    config = replace(config, resolution=config.resolution or default_resolution(extent))
+    if config.resolution is None:
+        config = replace(config, resolution=default_resolution(extent))
     return FIELDS[choose_kind(config, extent)](config, bbox_min, bbox_max, stress_scale)
 
 

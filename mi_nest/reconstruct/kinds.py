@@ -29,7 +29,14 @@ class GridOptions(KindOptions):
 
 
 @dataclass(frozen=True)
-class HashGridOptions(KindOptions):
+class NetworkOptions(KindOptions):
+    # Nodes along the longest axis of the lattice the network is sampled on once an iteration, the rays marching
+    # through those samples as through a grid's nodes; 0: the network evaluated at every step of every ray.
+    resolution: int
+
+
+@dataclass(frozen=True)
+class HashGridOptions(NetworkOptions):
     levels: int
     features_per_level: int
     hashmap_size: int           # entries per level
@@ -40,7 +47,7 @@ class HashGridOptions(KindOptions):
 
 
 @dataclass(frozen=True)
-class MLPOptions(KindOptions):
+class MLPOptions(NetworkOptions):
     width: int                  # hidden units per layer
     layers: int
     octaves: int                # of the sinusoidal encoding
@@ -51,20 +58,22 @@ class MLPOptions(KindOptions):
 class FieldKind:
     name: str
     label: str
-    # Nodes on a regular lattice: refined coarse to fine, smoothed by their gradients, balanced by the equilibrium
-    # prior, fitted to a start field, marched with steps of half their spacing.
-    lattice: bool
+    # Its parameters are the nodes of a regular lattice: fitted to a start field, refilled by branch repair,
+    # balanced by the equilibrium prior. (What is marched on a lattice, refined coarse to fine and smoothed by its
+    # gradients: FieldConfig.on_lattice, a grid or a network sampled on one.)
+    trains_nodes: bool
     options: type[KindOptions]
 
 
-GRID = FieldKind("grid", "a dense grid of the deviator's nodes", lattice=True, options=GridOptions)
-HASHGRID = FieldKind("hashgrid", "a multiresolution hash grid decoded by a small MLP", lattice=False,
+GRID = FieldKind("grid", "a dense grid of the deviator's nodes", trains_nodes=True, options=GridOptions)
+HASHGRID = FieldKind("hashgrid", "a multiresolution hash grid decoded by a small MLP", trains_nodes=False,
                      options=HashGridOptions)
-MLP = FieldKind("mlp", "the NeST paper's MLP on a sinusoidal encoding", lattice=False, options=MLPOptions)
+MLP = FieldKind("mlp", "the NeST paper's MLP on a sinusoidal encoding", trains_nodes=False,
+                options=MLPOptions)
 KINDS = {kind.name: kind for kind in (GRID, HASHGRID, MLP)}
 # Not a kind but a choice among them (fields.choose_kind): a grid unless it would be too large, so what grids
 # support is allowed with it, and refused where a run settles on another kind; it may read any kind's options.
-AUTO = FieldKind("auto", "a grid, or a hash grid where a grid would be too large", lattice=True,
+AUTO = FieldKind("auto", "a grid, or a hash grid where a grid would be too large", trains_nodes=True,
                  options=KindOptions)
 CHOICES = {**KINDS, AUTO.name: AUTO}
 

@@ -113,7 +113,7 @@ class Run:
     def _stages(self):
         """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
         resolution = self.config.field.resolution
-        if not KINDS[self.kind].lattice or not self.config.schedule.coarse_to_fine:
+        if not self.config.field.on_lattice or not self.config.schedule.coarse_to_fine:
             return [(0.0, resolution)]
         resolutions = sorted({r for r in (max(4, resolution // 4), max(4, resolution // 2)) if r < resolution})
         # Fine grids start coarser still: from 16 nodes the disk at 64 stuck in a wrapped minimum at 80%
@@ -276,15 +276,19 @@ class Run:
         resolution = [r for start, r in self.stages if start <= self.progress()][-1]
         if not self.field.lattice or self.field.config.resolution == resolution:
             return
-        self.field = refined(self.field, resolution)
-        self.optimizer = self._optimizer()
+        if KINDS[self.kind].trains_nodes:
+            self.field = refined(self.field, resolution)
+            self.optimizer = self._optimizer()
+        else:
+            # A network keeps its parameters, and Adam its moments: only the lattice it is sampled on grows.
+            self.field.sample_on(resolution)
 
     def _repair_if_due(self) -> None:
         """Every ``branch_repair`` of the run on the final grid, up to :data:`LAST_REPAIR`, refill the regions
         that unbalanced nodes enclose (:mod:`.repair`), with fresh moments for the refilled field; the check's
         time counts against the run's budget."""
         every = self.config.schedule.branch_repair
-        if (every <= 0 or not self.field.lattice or self.fitting_retardance() or not self.in_finest_stage()
+        if (every <= 0 or not KINDS[self.kind].trains_nodes or self.fitting_retardance() or not self.in_finest_stage()
                 or self.averaging()):
             return
         due = math.floor(self.progress() / every + 1e-9)
@@ -344,7 +348,7 @@ class Run:
             if penalty is not None:
                 total = total + penalty
             balance = None
-            if regulariser.equilibrium and self.field.lattice:
+            if regulariser.equilibrium and KINDS[self.kind].trains_nodes:
                 self._balance_mean()
                 balance = self.field.equilibrium_penalty(regulariser.equilibrium_at(field_rms),
                                                          self._balance.stencil)
@@ -362,6 +366,7 @@ class Run:
                 surface = self._free_surface().penalty(self.field, regulariser.free_surface_at(field_rms))
                 dr.backward(surface)
             value += float(surface[0])
+        self.field.finish_backward()
         self._check_divergence(value)
         self.optimizer.step()
         # The field follows the optimiser's new values at once: checkpoints and the result hold this step.
@@ -496,7 +501,7 @@ class Run:
     def second_moment(self) -> np.ndarray | None:
         """A grid's Adam second moment (its nodes' five components, flat), the trust map's curvature; None for
         networks."""
-        if not self.field.lattice:
+        if not KINDS[self.kind].trains_nodes:
             return None
         return adam_moments(self.optimizer)["grid"][2]
 
