@@ -154,6 +154,8 @@ def test_the_defaults_settle_on_a_specimen():
     assert (large.field.kind, large.field.resolution, large.regulariser) == ("hashgrid", 0, NO_REGULARISER)
     with pytest.raises(ValueError, match="evaluated at every step"):
         settle(OptimizeConfig(resolution=256, smoothness=1e-3), np.array([40.0, 40.0, 40.0]))
+    with pytest.raises(ValueError, match="a grid at 256 nodes would be too large here"):
+        settle(OptimizeConfig(resolution=256, start="model.TSV"), np.array([40.0, 40.0, 40.0]))
     assert settle(OptimizeConfig(resolution=20), np.array([40.0, 40.0, 6.0])).field.resolution == 20
     # The stacked disks' box: 32 nodes put 11 across its 12 mm; fringes aliased in 19% of the pixels ask for 64,
     # past the share reconstruct refuses without --allow-aliased; a resolution given is kept.

@@ -109,15 +109,15 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
         resolution = default_resolution(extent, aliased_share, pixels)
     kind = choose_kind(replace(config.field, resolution=resolution), extent)
     if config.field.kind == AUTO.name and kind != GRID.name:
-        # Chosen for a grid too large to hold: a lattice as large would be too.
+        if config.schedule.start is not None:
+            raise ValueError(f"a start field is fitted by grids only, and a grid at {resolution} nodes would be too "
+                             f"large here (auto chose '{kind}'): give a lower --resolution")
+        # Chosen for a grid too large to hold, a network is evaluated at every step: a lattice as large would not fit.
         resolution = 0
     settled = config.settled(kind, resolution)
     if ease_default_smoothness and dense_fringes(aliased_share, pixels) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
     if settled.schedule.start is not None:
-        if not KINDS[settled.field.kind].trains_nodes:
-            raise ValueError(f"a start field is fitted by grids only, and a grid at {resolution} nodes would be too "
-                             f"large here (auto chose '{settled.field.kind}'): give a lower --resolution")
         # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
         settled = replace(settled, schedule=replace(settled.schedule, coarse_to_fine=False, path_curriculum=0.0))
         optimiser = settled.optimiser
