@@ -24,11 +24,11 @@ from scipy.stats import spearmanr
 import mi_nest  # noqa: F401  (sets the variant)
 from mi_nest import occupancy
 from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
+from mi_nest.dataset.truth import recorded_truth
 from mi_nest.reconstruct import Reconstruction
 from mi_nest.reconstruct.evaluation import heldout_predictions
 from mi_nest.reconstruct.trust import TRUST_FILE, error_map, trust_map
-from mi_nest.scene import scene_field, specimen_shapes
+from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
 
 HERE = Path(__file__).resolve().parents[1]
@@ -38,9 +38,7 @@ TERMS = ("imbalance", "curvature_spread", "heldout_residual", "coverage", "direc
 def rank(directory: Path) -> dict:
     result = Reconstruction.load(directory)
     dataset = Dataset(result.source["dataset"])
-    source = dataset.index.get("source") or {}
-    scene = recorded_scene(source).load()
-    truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
+    scene, truth = recorded_truth(dataset)
     start = time.perf_counter()
     predictions = heldout_predictions(scene, dataset, result.field, result.tracer(scene),
                                       result.config.reporting.evaluate_views)

@@ -19,12 +19,10 @@ from pathlib import Path
 import common
 
 import mi_nest  # noqa: F401  (sets the variant)
-from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.reconstruct import Reconstruction, metrics
 from mi_nest.reconstruct.repair import refill as refilled_nodes
 from mi_nest.reconstruct.trust import imbalance
-from mi_nest.scene import scene_field, specimen_shapes
+from mi_nest.scene import specimen_shapes
 
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "benchmarks"))
@@ -35,10 +33,7 @@ from reconstruction import cpu_name  # noqa: E402
 def refill(directory: Path, output: Path) -> dict:
     """``directory``'s field refilled where its imbalance encloses a region, saved in ``output``; what it did."""
     result = Reconstruction.load(directory)
-    dataset = Dataset(result.source["dataset"])
-    source = dataset.index.get("source") or {}
-    scene = recorded_scene(source).load()
-    truth = scene_field(truth_scene(scene, source, str(dataset.directory)))
+    dataset, scene, truth = common.simulated_from(result)
     probe = metrics.ErrorProbe(truth, metrics.evaluation_points(scene, specimen_shapes(scene)))
     field = result.field
     if field.kind != "grid":

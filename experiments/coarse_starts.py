@@ -24,12 +24,12 @@ from scipy.stats import spearmanr
 
 import mi_nest
 from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
+from mi_nest.dataset.truth import recorded_truth
 from mi_nest.fields.base import sample
 from mi_nest.io.grid import StressGrid, grid_nodes, save_stress_grid
 from mi_nest.reconstruct import FieldConfig, make_field, metrics
 from mi_nest.reconstruct.optimization import stress_scale
-from mi_nest.scene import scene_field, specimen_bounds, specimen_media, specimen_shapes
+from mi_nest.scene import specimen_bounds, specimen_media, specimen_shapes
 
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE / "benchmarks"))
@@ -60,13 +60,11 @@ def main():
     if not (DATA / "dataset.json").is_file():
         raise SystemExit(f"{DATA} is missing: run python benchmarks/accuracy_suite.py --cases disk_600N first")
     dataset = Dataset(DATA)
-    source = dataset.index["source"]
-    scene = recorded_scene(source).load()
+    scene, truth = recorded_truth(dataset)
     shapes = specimen_shapes(scene)
     low, high = specimen_bounds(shapes)
     field = make_field(FieldConfig(kind="grid", resolution=RESOLUTION), low, high,
                        stress_scale(specimen_media(scene), low, high))
-    truth = scene_field(truth_scene(scene, source, str(DATA)))
     best = metrics.fitted_nodes(field, truth, metrics.evaluation_points(scene, shapes, 3 * metrics.EVALUATION_POINTS))
     starts = {"zero": None}
     starts.update({f"truth's best grid x {s:g}": s * best for s in TRUTH_SCALES})

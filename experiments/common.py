@@ -15,9 +15,8 @@ from pathlib import Path
 
 import mi_nest
 from mi_nest.dataset import Dataset, SimulationSettings, simulate
-from mi_nest.dataset.truth import recorded_scene, truth_scene
+from mi_nest.dataset.truth import recorded_truth
 from mi_nest.reconstruct import NO_REGULARISER
-from mi_nest.scene import scene_field
 
 # Every experiment's optimiser settings, unless it varies them: the clock ends the runs, and the fit is plain
 # (as when the experiments were first run; those that study the regulariser give it).
@@ -102,9 +101,7 @@ def simulated_from(result):
     """``(dataset, scene, truth)`` of a reconstruction of a simulated dataset: the dataset, the scene it was
     rendered from and the stress field it was simulated with."""
     dataset = Dataset(result.source["dataset"])
-    source = dataset.index.get("source") or {}
-    scene = recorded_scene(source).load()
-    return dataset, scene, scene_field(truth_scene(scene, source, str(dataset.directory)))
+    return (dataset, *recorded_truth(dataset))
 
 
 def write_table(rows, path):

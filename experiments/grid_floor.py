@@ -25,8 +25,6 @@ import common
 import numpy as np
 
 import mi_nest
-from mi_nest.dataset import Dataset
-from mi_nest.dataset.truth import recorded_scene, truth_scene
 from mi_nest.fields.base import sample
 from mi_nest.physics.tensors import deviatoric_part, tensor_norm
 from mi_nest.reconstruct import FieldConfig, Reconstruction, make_field, metrics
@@ -86,9 +84,7 @@ def main():
         row(f"best grid, {resolution} nodes", field, time.perf_counter() - began)
     for directory in args.results:
         result = Reconstruction.load(directory)
-        dataset = Dataset(result.source["dataset"])
-        source = dataset.index.get("source") or {}
-        recorded = scene_field(truth_scene(recorded_scene(source).load(), source, str(dataset.directory)))
+        _, _, recorded = common.simulated_from(result)
         if not np.allclose(deviatoric_part(sample(recorded, points)), reference, rtol=1e-4, atol=1e-6):
             raise SystemExit(f"{directory}: its dataset holds another field than --scene {args.scene}'s defaults")
         row(f"reconstruction {directory.name}", result.field, 0.0)

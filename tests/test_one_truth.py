@@ -1,5 +1,7 @@
 """One truth: a reconstruction, its metrics and its views are scored against the field its dataset was
 simulated from, whatever scene they are given; a scene that differs is named value by value."""
+import json
+import shutil
 import warnings
 
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 import mi_nest
 from mi_nest.cli import main
 from mi_nest.dataset import simulate
-from mi_nest.dataset.truth import SceneRecord, recorded_scene
+from mi_nest.dataset.truth import SceneRecord, recorded_scene, recorded_truth
 from mi_nest.fields.base import sample
 from mi_nest.views import open_source
 from mi_nest.reconstruct import optimize
@@ -64,6 +66,22 @@ def test_a_scene_whose_specimen_lies_elsewhere_is_refused_naming_both(dataset):
     with pytest.raises(SceneError, match=r"holds its specimens from \(-15, -15, -3\) to \(15, 15, 3\) mm, the one .* "
                                          r"from \(-20, -20, -3\) to \(20, 20, 3\) mm"):
         _optimize(mi_nest.load_scene("disk_compression", res=8, diameter=30, **DEFINES), dataset)
+
+
+def test_the_recorded_truth_is_the_field_the_dataset_was_simulated_from(dataset, tmp_path):
+    scene, truth = recorded_truth(mi_nest.Dataset(dataset))
+    points = np.array([[0.0, 0.0, 0.0], [5.0, 3.0, 1.0], [-8.0, 10.0, -2.0]])
+    np.testing.assert_array_equal(sample(truth, points),
+                                  _field_values(mi_nest.load_scene("disk_compression", res=8, **DEFINES)))
+    assert not np.allclose(sample(truth, points), _field_values(mi_nest.load_scene("disk_compression", res=8)))
+    assert specimen_media(scene)[0].field is not None
+    capture = tmp_path / "capture"
+    shutil.copytree(dataset, capture)
+    index = json.loads((capture / "dataset.json").read_text())
+    index["source"] = {"kind": "captured"}
+    (capture / "dataset.json").write_text(json.dumps(index))
+    with pytest.raises(SceneError, match="records no simulated scene"):
+        recorded_truth(mi_nest.Dataset(capture))
 
 
 def test_records_compare_values_not_spellings_and_skip_the_sampling(dataset):

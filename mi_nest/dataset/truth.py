@@ -16,7 +16,8 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..scene import SceneError, load_scene, scene_defaults, scene_origin, specimen_bounds, specimen_shapes
+from ..fields.base import StressField
+from ..scene import SceneError, load_scene, scene_defaults, scene_field, scene_origin, specimen_bounds, specimen_shapes
 
 # Defines that set how the camera samples the images, not the specimen or its stress: the images' size is
 # checked against the film where rays are made, so they need not match the record.
@@ -59,6 +60,16 @@ def recorded_scene(source: dict) -> SceneRecord | None:
     if source.get("kind") != "simulated" or not source.get("scene"):
         return None
     return SceneRecord(Path(source["scene"]).resolve(), _as_text(source.get("defines") or {}))
+
+
+def recorded_truth(dataset) -> tuple[mi.Scene, StressField]:
+    """The scene a simulated ``dataset`` was rendered from, loaded as its ``dataset.json`` records it, and that
+    scene's stress field: what reconstructions from it are scored against. Refused for a capture (no record)."""
+    record = recorded_scene(dataset.index.get("source") or {})
+    if record is None:
+        raise SceneError(f"{dataset.directory} records no simulated scene (a capture): it has no true field")
+    scene = record.load()
+    return scene, scene_field(scene)
 
 
 def truth_scene(scene: mi.Scene, source: dict, what: str) -> mi.Scene:
