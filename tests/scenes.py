@@ -12,7 +12,7 @@ from mi_nest.fields.base import sample
 from mi_nest.io.grid import grid_nodes
 from mi_nest.physics.tensors import deviatoric_part
 from mi_nest.reconstruct import FieldConfig
-from mi_nest.reconstruct.fields import DeviatoricGrid
+from mi_nest.reconstruct.fields import DeviatoricGrid, stored_components
 
 WAVELENGTH = 532.0
 # The smallest dataset a reconstruction runs on (four rotations at 8 px, one held out), and a load that keeps its
@@ -31,7 +31,7 @@ def disk_deviator_grid(plant=None):
     nodes = grid_nodes(grid.bbox_min, grid.bbox_max, grid.shape)
     truth = deviatoric_part(sample(DiskCompressionField(load=100, contact_width=4), nodes))
     values = truth if plant is None else plant(truth, nodes)
-    grid.assign({"grid": mi.TensorXf((values[:, [0, 1, 3, 4, 5]] / grid.stress_scale)
+    grid.assign({"grid": mi.TensorXf(stored_components(values, grid.stress_scale)
                                      .reshape(nz, ny, nx, 5).astype(np.float32))})
     return grid, nodes, truth
 

@@ -11,7 +11,7 @@ from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import FieldConfig, OptimizeConfig
 from mi_nest.reconstruct import equilibrium
 from mi_nest.physics.tensors import deviatoric_part
-from mi_nest.reconstruct.fields import DeviatoricGrid, field_from_state, grid_shape
+from mi_nest.reconstruct.fields import DeviatoricGrid, field_from_state, grid_shape, stored_components
 
 
 def _random_case(seed=0, shape=(5, 4, 6)):
@@ -88,7 +88,7 @@ def _balance(field, low, high, inside_nodes, resolution):
     nodes = grid_nodes(low, high, shape)
     stress = field.sample(nodes) if hasattr(field, "sample") else sample(field, nodes)
     inside = np.isfinite(stress).all(axis=1) & inside_nodes(nodes)
-    deviator = np.nan_to_num(deviatoric_part(stress))[:, [0, 1, 3, 4, 5]]
+    deviator = stored_components(np.nan_to_num(deviatoric_part(stress)))
     scale = np.sqrt(np.mean(np.sum(deviator[inside] ** 2, axis=1)))
     planted = deviator * (1.0 + (nodes[:, :1] - low[0]) / (high - low).max())
     stencil = equilibrium.CellStencil.of(shape, high - low, _corners_inside(inside.reshape(nz, ny, nx)))

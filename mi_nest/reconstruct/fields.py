@@ -31,6 +31,14 @@ from .config import (DENSE_REGULARISED, REGULARISED, STARTED_LEARNING_RATE, Fiel
 from .kinds import AUTO, GRID, HASHGRID, KINDS, MLP
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
+# Where DEVIATORIC's components sit in a six-vector (xx, yy, zz, yz, zx, xy): zz is the one left out.
+DEVIATORIC_OF_SIX = [0, 1, 3, 4, 5]
+
+
+def stored_components(deviator: np.ndarray, stress_scale: float = 1.0) -> np.ndarray:
+    """``(..., 5)``: what a trainable field stores (:data:`DEVIATORIC`, in units of ``stress_scale``) for
+    ``(..., 6)`` deviatoric stresses."""
+    return np.asarray(deviator)[..., DEVIATORIC_OF_SIX] / stress_scale
 
 
 # Above this many grid nodes a hash grid stores the same detail in less memory and fewer updates.

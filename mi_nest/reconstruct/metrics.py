@@ -12,7 +12,7 @@ from ..fields.base import StressField, sample
 from ..io.grid import grid_nodes
 from ..physics.tensors import deviatoric_part, principal_difference, tensor_norm
 from ..scene import specimen_bounds
-from .fields import TrainableField
+from .fields import TrainableField, stored_components
 
 if TYPE_CHECKING:
     import scipy.sparse
@@ -85,7 +85,7 @@ def representation_floor(field: TrainableField, truth: StressField, points: np.n
     if not getattr(field, "lattice", False):
         return None
     nodes = deviatoric_part(sample(truth, grid_nodes(field.bbox_min, field.bbox_max, field.shape)))
-    return _grid_error(field, nodes[:, [0, 1, 3, 4, 5]] / field.stress_scale, truth, points)
+    return _grid_error(field, stored_components(nodes, field.stress_scale), truth, points)
 
 
 def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, shapes: list[mi.Shape],
@@ -128,7 +128,7 @@ def nodes_fitting(field: TrainableField, stress: np.ndarray, fit_points: np.ndar
     minutes where nodes touch the points with tiny weights, as in the kitten's ears)."""
     import scipy.sparse
     import scipy.sparse.linalg
-    target = deviatoric_part(stress)[:, [0, 1, 3, 4, 5]] / field.stress_scale
+    target = stored_components(deviatoric_part(stress), field.stress_scale)
     basis = trilinear_basis(fit_points, field.bbox_min, field.bbox_max, field.shape).tocsr()
     normal = (basis.T @ basis).tocsc()
     diagonal = normal.diagonal()

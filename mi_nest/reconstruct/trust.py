@@ -42,7 +42,7 @@ from ..io.grid import grid_nodes
 from . import equilibrium
 from .evaluation import view_mask
 from ..physics.tensors import deviatoric_part, tensor_norm
-from .fields import TrainableField, grid_shape
+from .fields import TrainableField, grid_shape, stored_components
 from .rays import ViewRays
 
 # Training views sampled for the coverage (evenly over the split): enough to see every direction of the rig.
@@ -215,7 +215,7 @@ def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int
         deviator = np.array(field.texture.tensor(), dtype=np.float64)
     else:
         stress = deviatoric_part(sample(field, grid_nodes(field.bbox_min, field.bbox_max, shape)))
-        deviator = (stress[:, [0, 1, 3, 4, 5]] / field.stress_scale).reshape(nz, ny, nx, 5)
+        deviator = stored_components(stress, field.stress_scale).reshape(nz, ny, nx, 5)
     if solver is None:
         solver = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, shape, field.bbox_min,
                                                                            field.bbox_max))
