@@ -13,9 +13,11 @@ from __future__ import annotations
 import common
 
 # Per representation: its options, and how often to record the error (the neural fields take far fewer steps).
+# The networks are evaluated at every step, as NeST does (resolution 0), as when the recorded results were made.
 KINDS = {"grid": {"kind": "grid", "track_error_every": 100},
-         "hashgrid": {"kind": "hashgrid", "track_error_every": 20},
-         "mlp": {"kind": "mlp", "learning_rate": 0.005, "final_learning_rate": 0.0005, "track_error_every": 5}}
+         "hashgrid": {"kind": "hashgrid", "resolution": 0, "track_error_every": 20},
+         "mlp": {"kind": "mlp", "resolution": 0, "learning_rate": 0.005, "final_learning_rate": 0.0005,
+                 "track_error_every": 5}}
 METHODS = ("product", "linear")
 
 

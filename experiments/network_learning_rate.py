@@ -45,7 +45,8 @@ def main():
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
                     result = mi_nest.optimize(scene, DATA, output=args.output / "results" / label.replace(" ", "_"),
-                                              resume=False, progress=False, kind=kind, learning_rate=rate,
+                                              resume=False, progress=False, kind=kind, resolution=0,
+                                              learning_rate=rate,
                                               final_learning_rate=rate / 25, iterations=1_000_000,
                                               time_limit=60.0 * args.minutes, track_error_every=25)
             except DivergenceError as error:

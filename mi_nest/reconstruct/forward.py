@@ -11,10 +11,10 @@ from .fields import TrainableField
 
 
 def forward_step(config: OptimizeConfig, stress_field: TrainableField) -> float:
-    """The step (mm) a reconstruction marches ``stress_field`` with: the configuration's, else for a grid half
-    its node spacing as it stands, so that a coarse-to-fine stage marches its own coarse grid with steps as much
-    longer (the 8-node stage of a 64-node run takes an eighth of the steps), and the finest stage the final
-    grid's."""
+    """The step (mm) a reconstruction marches ``stress_field`` with: the configuration's, else on a lattice (a grid,
+    or a network sampled on one) half its node spacing as it stands, so that a coarse-to-fine stage marches its own
+    coarse lattice with steps as much longer (the 8-node stage of a 64-node run takes an eighth of the steps), and
+    the finest stage the final lattice's."""
     if config.model.step_size is not None:
         return config.model.step_size
     extent = stress_field.bbox_max - stress_field.bbox_min

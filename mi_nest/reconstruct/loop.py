@@ -111,7 +111,8 @@ class Run:
         self._last_check = 0.0          # the progress at the last branch repair's check
 
     def _stages(self):
-        """``[(progress at which it starts, grid resolution)]``: coarse to fine for grids, one stage otherwise."""
+        """``[(progress at which it starts, lattice resolution)]``: coarse to fine on a lattice (a grid, or a network
+        sampled on one), one stage otherwise."""
         resolution = self.config.field.resolution
         if not self.config.field.on_lattice or not self.config.schedule.coarse_to_fine:
             return [(0.0, resolution)]

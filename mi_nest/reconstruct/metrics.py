@@ -79,7 +79,7 @@ def representation_floor(field: TrainableField, truth: StressField, points: np.n
     """The deviatoric error of ``truth`` itself sampled into a grid like ``field`` (the best grid,
     :func:`best_fit_floor`, does better near stress concentrations).
 
-    Only for grids (None otherwise): singular fields (point loads) keep even a
+    Only on a lattice (a grid, or a network sampled on one; None otherwise): singular fields (point loads) keep a
     perfect reconstruction far from zero error at a finite resolution.
     """
     if not getattr(field, "lattice", False):
@@ -92,7 +92,7 @@ def best_fit_floor(field: TrainableField, truth: StressField, scene: mi.Scene, s
                    points: np.ndarray, fit_points_per_axis: int = 3 * EVALUATION_POINTS) -> float | None:
     """The deviatoric error at ``points`` of the least-squares fit of ``truth`` by a grid like ``field`` on a
     lattice ``fit_points_per_axis`` fine: the volume's best grid, near stress concentrations far better than
-    the nodal values (:func:`representation_floor`). Only for grids (None otherwise)."""
+    the nodal values (:func:`representation_floor`). Only on a lattice (None otherwise)."""
     if not getattr(field, "lattice", False):
         return None
     return _grid_error(field, fitted_nodes(field, truth, evaluation_points(scene, shapes, fit_points_per_axis)),
@@ -103,7 +103,7 @@ def grid_floor(field: TrainableField, truth: StressField, points: np.ndarray) ->
     """The lowest deviatoric error that any grid like ``field`` can score at ``points``: the least-squares fit
     of ``truth`` at those very points. The error is one L2 norm over the same points, and a node's five stored
     components enter it through one positive-definite form shared by every point, so the componentwise fit
-    minimises it: no optimiser of this grid scores lower (up to the solver's tolerance). Only for grids."""
+    minimises it: no optimiser of this grid scores lower (up to the solver's tolerance). Only on a lattice."""
     if not getattr(field, "lattice", False):
         return None
     return _grid_error(field, fitted_nodes(field, truth, points), truth, points)
