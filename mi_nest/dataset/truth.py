@@ -16,7 +16,6 @@ from pathlib import Path
 import mitsuba as mi
 import numpy as np
 
-from ..fields.base import StressField
 from ..scene import SceneError, load_scene, scene_defaults, scene_field, scene_origin, specimen_bounds, specimen_shapes
 
 # Defines that set how the camera samples the images, not the specimen or its stress: the images' size is
@@ -62,9 +61,10 @@ def recorded_scene(source: dict) -> SceneRecord | None:
     return SceneRecord(Path(source["scene"]).resolve(), _as_text(source.get("defines") or {}))
 
 
-def recorded_truth(dataset) -> tuple[mi.Scene, StressField]:
-    """The scene a simulated ``dataset`` was rendered from, loaded as its ``dataset.json`` records it, and that
-    scene's stress field: what reconstructions from it are scored against. Refused for a capture (no record)."""
+def recorded_truth(dataset):
+    """``(scene, field)``: the scene a simulated ``dataset`` was rendered from, loaded as its ``dataset.json``
+    records it, and that scene's stress field (:func:`~mi_nest.scene.scene_field`), what reconstructions from it
+    are scored against. Refused for a capture (no record)."""
     record = recorded_scene(dataset.index.get("source") or {})
     if record is None:
         raise SceneError(f"{dataset.directory} records no simulated scene (a capture): it has no true field")
