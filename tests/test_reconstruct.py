@@ -183,6 +183,9 @@ def test_the_defaults_settle_on_a_specimen():
     assert (network.field.kind, network.field.resolution, network.regulariser) == ("hashgrid", 64, REGULARISED)
     with pytest.raises(ValueError, match="resolution must be at least 2"):
         OptimizeConfig(kind="grid", resolution=0)
+    with pytest.raises(ValueError, match=r"resolution must be at least 2 nodes \(or 0: a network evaluated at every "
+                                         r"step\), got 1"):
+        OptimizeConfig(kind="mlp", resolution=1)
     # The MLP's own steps (the grids' ran it away); a learning rate given is kept, and a saved run reloads as run.
     from mi_nest.reconstruct.config import MLP_OPTIMISER, Optimiser
     assert OptimizeConfig(kind="mlp").optimiser == MLP_OPTIMISER

@@ -149,9 +149,8 @@ class FieldConfig:
         if self.resolution == 0 and kind_named(self.kind).trains_nodes:
             raise ValueError("a grid's resolution must be at least 2 nodes (0, a network evaluated at every step, is "
                              "for kind=hashgrid or mlp), got 0")
-        if self.resolution is not None and self.resolution != 0 and self.resolution < 2:
-            raise ValueError(f"resolution must be at least 2 nodes (or 0: a network evaluated at every step), got "
-                             f"{self.resolution}")
+        if self.resolution == 1:
+            raise ValueError("resolution must be at least 2 nodes (or 0: a network evaluated at every step), got 1")
 
     @property
     def on_lattice(self) -> bool:
