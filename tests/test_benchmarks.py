@@ -12,7 +12,7 @@ Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's k
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
 dataset 8.2, accuracy_suite 9.5 (two cases), separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
-grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6: 163 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
+grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6, network_lattice 2.5: 166 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
 refraction took 31 s). None is marked slow: the module fits in the default run.
 """
 from __future__ import annotations
@@ -113,6 +113,11 @@ CASES = {
     "methods": (["--res", "32"],
                 [r"method +seconds +error +step mm +speed-up", r"auto +[\d.]+ +[\d.e+-]+ +[\d.]+ +[\d.]+x",
                  r"magnus4 \d+ steps, product \(midpoint\) \d+ steps: [\d.]+x fewer \(target: at least 4x\)"], []),
+    "network_lattice": (["--repeats", "1"],
+                        [r"CPU: .*, Dr\.Jit threads: \d+",
+                         *(rf"{kind} .*: [\d.]+ ms by cooperative vectors, [\d.]+ ms by matrix products \([\d.]+ "
+                           r"times faster\); samples differ by [\d.e+-]+ at most, gradients by [\d.e+-]+ of the "
+                           r"largest" for kind in ("mlp", "hashgrid"))], []),
     "reconstruction": (["--baseline", "{root}", "--rotations", "2", "--res", "16", "--iterations", "5",
                         "--resolution", "6", "--batch-size", "64", "--rounds", "1"],
                        [r"round 1 baseline +[\d.]+ it/s .*", r"ratio this checkout / baseline: [\d.]+",

@@ -114,6 +114,29 @@ def test_a_network_sampled_on_a_lattice_is_the_network_at_its_nodes_and_trilinea
                                atol=1e-5 * np.abs(exact).max())
 
 
+@pytest.mark.parametrize("kind", ["hashgrid", "mlp"])
+def test_a_lattice_samples_by_matrix_products_and_a_step_by_cooperative_vectors_share_their_gradients(kind):
+    """The lattice's samples are computed by matrix products on the weights gathered from the packed buffer; their
+    backward pass must reach the same buffer with what the cooperative vectors of a ray's step give."""
+    field = make_field(FieldConfig(kind=kind, resolution=6, levels=2, hashmap_size=256, width=16, layers=2,
+                                   octaves=3), (-1, -2, -3), (1, 2, 3), 2.5)
+    points = mi.Point3f(np.random.default_rng(5).uniform(-1, 1, (3, 97)).astype(np.float32))
+    weights = [mi.Float(np.random.default_rng(6 + c).normal(size=97).astype(np.float32)) for c in range(5)]
+    gradients = []
+    for evaluate in (field.network, field.network_at_all):
+        parameters = field.parameters()
+        for value in parameters.values():
+            dr.enable_grad(value)
+            dr.clear_grad(value)
+        with dr.resume_grad():
+            values = evaluate(points)
+            dr.backward(sum(dr.sum(v * w) for v, w in zip(values, weights)))
+        gradients.append({name: np.array(dr.grad(value)) for name, value in parameters.items()})
+    for name, by_vectors in gradients[0].items():
+        assert np.abs(by_vectors).max() > 0
+        np.testing.assert_allclose(gradients[1][name], by_vectors, atol=1e-5 * np.abs(by_vectors).max())
+
+
 @pytest.mark.parametrize("kind", ["grid", "hashgrid", "mlp"])
 def test_fields_stay_bounded_a_hair_outside_their_box(kind):
     """Samples on a specimen's surface can round outside the bounding box (the hash encoding then read

@@ -388,7 +388,8 @@ def _gathered(view: nn.MatrixView, shape: tuple[int, ...]) -> mi.TensorXf:
 def _tensor_mode(packed: nn.Module) -> nn.Sequential:
     """``packed``'s layers with the weights gathered from its buffer as plain tensors, to evaluate on a tensor of
     inputs (matrix products) rather than on cooperative vectors: on the LLVM backend the latter's backward pass
-    accumulates the weights' gradients point by point, six times slower on the disk's 64 x 64 x 11 lattice."""
+    accumulates the weights' gradients point by point (the MLP's pass 4.1 times slower on the disk's 64 x 64 x 11
+    lattice, benchmarks/network_lattice.py)."""
     unpacked = nn.unpack(packed)
     layers = []
     for layer in unpacked.layers:
