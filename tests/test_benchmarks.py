@@ -12,8 +12,9 @@ Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's k
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
 dataset 8.2, accuracy_suite 9.5 (two cases), separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
-grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6, network_lattice 2.5: 166 s for the module (151 s in a busier run; 157 s with an empty kernel cache, where
-refraction took 31 s). None is marked slow: the module fits in the default run.
+grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6, network_lattice 2.5: 166 s for the
+module (151 s in a busier run; 157 s with an empty kernel cache, where refraction took 31 s). None is marked
+slow: the module fits in the default run.
 """
 from __future__ import annotations
 
