@@ -402,6 +402,10 @@ def _tensor_mode(packed: nn.Module) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+# Adam steps that fit a network on a new, finer lattice to the coarser one's field (_NeuralField._keep_field).
+KEEP_STEPS = 200
+
+
 class _NeuralField(TrainableField):
     """A network of the position; with a resolution, sampled once an iteration at the nodes of a lattice
     (:attr:`samples`, a :class:`DeviatoricGrid`) that the rays then march through as through a grid's: a lookup per
@@ -421,13 +425,30 @@ class _NeuralField(TrainableField):
         self._positions = mi.Point3f(grid_nodes(self.bbox_min, self.bbox_max, self.samples.shape).T
                                      .astype(np.float32))
 
-    def sample_on(self, resolution: int) -> None:
+    def sample_on(self, resolution: int, learning_rate: float) -> None:
         """Sample the network on a lattice of ``resolution`` nodes along the longest axis from now on (coarse to
-        fine: the parameters, and an optimiser's moments, carry over)."""
+        fine), first fitted there to the coarser lattice's trilinear field (:meth:`_keep_field`)."""
+        coarse = self.samples
         self.config = replace(self.config, resolution=int(resolution))
         self.options = KINDS[self.kind].options.of(self.config)
         self._lattice_for(self.options.resolution)
+        if coarse is not None:
+            self._keep_field(coarse, learning_rate)
         self._sample()
+
+    def _keep_field(self, coarse: DeviatoricGrid, learning_rate: float) -> None:
+        """Fit the network at the new lattice's nodes to ``coarse``'s trilinear field there by :data:`KEEP_STEPS`
+        of Adam (its own moments), as a grid's refinement keeps its field. The rays saw the network only at the
+        coarser nodes; between them it holds whatever its initial weights and the fit left."""
+        target = [dr.detach(value) for value in coarse.deviatoric(self._positions)]
+        fit = dr.opt.Adam(lr=learning_rate, params=self.parameters())
+        for _ in range(KEEP_STEPS):
+            self._set_parameters(fit)
+            with dr.resume_grad():
+                values = self.network_at_all(self._positions)
+                dr.backward(sum(dr.mean(dr.square(value - wanted)) for value, wanted in zip(values, target)))
+            fit.step()
+        self._set_parameters(fit)
 
     @property
     def shape(self) -> tuple[int, int, int] | None:
@@ -464,8 +485,11 @@ class _NeuralField(TrainableField):
         raise NotImplementedError
 
     def assign(self, values: dict) -> None:
-        self.net["weights"] = values["weights"]
+        self._set_parameters(values)
         self._sample()
+
+    def _set_parameters(self, values) -> None:
+        self.net["weights"] = values["weights"]
 
     def _sample(self) -> None:
         if self.options.resolution == 0:
@@ -545,9 +569,9 @@ class HashGridField(_NeuralField):
     def parameters(self) -> dict:
         return {"encoding": self.encoding.data, "weights": self.net["weights"]}
 
-    def assign(self, values: dict) -> None:
+    def _set_parameters(self, values) -> None:
         self.encoding.data = values["encoding"]
-        super().assign(values)
+        super()._set_parameters(values)
 
     def describe(self) -> str:
         return (f"hashgrid {self.options.levels} levels x {self.options.features_per_level} features, "

@@ -281,8 +281,10 @@ class Run:
             self.field = refined(self.field, resolution)
             self.optimizer = self._optimizer()
         else:
-            # A network keeps its parameters, and Adam its moments: only the lattice it is sampled on grows.
-            self.field.sample_on(resolution)
+            # A network is fitted on the finer lattice to the coarser field; Adam keeps its moments.
+            self.field.sample_on(resolution, self.config.optimiser.learning_rate)
+            for name, value in self.field.parameters().items():
+                self.optimizer[name] = value
 
     def _repair_if_due(self) -> None:
         """Every ``branch_repair`` of the run on the final grid, up to :data:`LAST_REPAIR`, refill the regions
