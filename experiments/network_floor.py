@@ -24,7 +24,6 @@ import mitsuba as mi
 import numpy as np
 
 import mi_nest  # noqa: F401  (sets the variant)
-from mi_nest.io.grid import grid_nodes
 from mi_nest.reconstruct import Reconstruction, make_field, metrics
 from mi_nest.scene import specimen_shapes
 
@@ -48,25 +47,19 @@ def floor_rows(directory: Path, steps: list[int]) -> list[dict]:
     found.samples.set_nodes(best)
     best_error = probe(found.samples)
     network = make_field(found.config, found.bbox_min, found.bbox_max, found.stress_scale)
-    positions = mi.Point3f(grid_nodes(found.bbox_min, found.bbox_max, found.shape).T.astype(np.float32))
+    # Made from the result's configuration, it is sampled on the result's own lattice.
     target = [mi.Float(best[:, component].astype(np.float32)) for component in range(5)]
     learning_rate = result.config.optimiser.learning_rate
     optimiser = dr.opt.Adam(lr=learning_rate, params=network.parameters())
     rows, done, began = [], 0, time.perf_counter()
-    for count in sorted(steps):
-        while done < count:
-            network.assign(optimiser)
-            with dr.resume_grad():
-                values = network.network_at_all(positions)
-                loss = sum(dr.mean(dr.square(value - wanted)) for value, wanted in zip(values, target))
-                dr.backward(loss)
-            optimiser.step()
-            done += 1
+    for count in sorted(set(steps)):
+        loss = network.fit_at_nodes(target, optimiser, count - done)
+        done = count
         network.assign(optimiser)
         rows.append({"result": directory.name, "field": found.describe(),
                      "reconstruction_error": round(float(result.metrics["deviatoric_error"]), 4),
                      "reconstruction_iterations": len(result.history), "best_grid_error": round(best_error, 4),
-                     "learning_rate": learning_rate, "steps": done, "node_mse": round(float(loss[0]), 5),
+                     "learning_rate": learning_rate, "steps": done, "node_mse": round(loss, 5),
                      "fitted_error": round(probe(network), 4),
                      "seconds": round(time.perf_counter() - began, 1), "cpu": cpu_name()})
         print(rows[-1], flush=True)

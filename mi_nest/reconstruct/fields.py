@@ -441,14 +441,22 @@ class _NeuralField(TrainableField):
         of Adam (its own moments), as a grid's refinement keeps its field. The rays saw the network only at the
         coarser nodes; between them it holds whatever its initial weights and the fit left."""
         target = [dr.detach(value) for value in coarse.deviatoric(self._positions)]
-        fit = dr.opt.Adam(lr=learning_rate, params=self.parameters())
-        for _ in range(KEEP_STEPS):
-            self._set_parameters(fit)
+        self.fit_at_nodes(target, dr.opt.Adam(lr=learning_rate, params=self.parameters()), KEEP_STEPS)
+
+    def fit_at_nodes(self, target: list[mi.Float], optimizer: dr.opt.Optimizer, steps: int) -> float:
+        """``steps`` of ``optimizer`` (over :meth:`parameters`) on the mean squared difference, summed over the five
+        components, between the network at the lattice's nodes and ``target`` there; the parameters end as the
+        optimizer's (the samples are not taken again). Returns the last step's loss."""
+        loss = mi.Float(0.0)
+        for _ in range(steps):
+            self._set_parameters(optimizer)
             with dr.resume_grad():
                 values = self.network_at_all(self._positions)
-                dr.backward(sum(dr.mean(dr.square(value - wanted)) for value, wanted in zip(values, target)))
-            fit.step()
-        self._set_parameters(fit)
+                loss = sum(dr.mean(dr.square(value - wanted)) for value, wanted in zip(values, target))
+                dr.backward(loss)
+            optimizer.step()
+        self._set_parameters(optimizer)
+        return float(loss[0])
 
     @property
     def shape(self) -> tuple[int, int, int] | None:
