@@ -4,6 +4,10 @@ For each finished reconstruction given (``mi-nest reconstruct`` output directori
 the accuracy suite's), computes its trust map (``mi_nest.reconstruct.trust``) and the deviatoric error norm against
 the field the dataset was simulated from at the map's nodes inside the specimen, and prints the Spearman rank
 correlation of each trust term and of the uncertainty with the error, with the CPU and the seconds the map took.
+Where the same case's result with the other seed lies beside it (the suite's ``CASE`` and ``CASE_seed1``), also
+the rank correlation of the two runs' actual error maps (``rho_twin_error``): how much of the error repeats
+from run to run, a yardstick for the trust terms where the error is mostly the seed's. ``rho_imbalance_bulk``: the
+imbalance's rank correlation over the 80% of the nodes where it is lowest.
 Each result's ``trust.npz`` is written again with the map computed here (its curvature spread from the Adam
 moments of its ``checkpoint.npz``; results made before runs wrote their trust map get one).
 
@@ -33,6 +37,7 @@ from reconstruction import cpu_name
 
 HERE = Path(__file__).resolve().parents[1]
 TERMS = ("imbalance", "curvature_spread", "heldout_residual", "coverage", "direction_spread")
+BULK = 0.8      # the share of the nodes, lowest imbalance first, whose ranking is reported on its own
 
 
 def rank(directory: Path) -> dict:
@@ -56,11 +61,33 @@ def rank(directory: Path) -> dict:
            "deviatoric_error": round(result.metrics.get("deviatoric_error", float("nan")), 4),
            "error_cv": round(float(np.std(error) / np.mean(error)), 3)}
     for term in TERMS:
+        if getattr(trust, term) is None:  # a network keeps no Adam moments per node: no curvature spread
+            row[f"rho_{term}"] = float("nan")
+            continue
         values = getattr(trust, term).ravel()[inside]
         finite = np.isfinite(values)
         row[f"rho_{term}"] = round(float(spearmanr(values[finite], error[finite]).statistic), 3)
+    # Below the imbalance's 80th percentile: away from where it concentrates, does anything still rank the error?
+    imbalance = trust.imbalance.ravel()[inside]
+    bulk = np.isfinite(imbalance) & (imbalance < np.nanquantile(imbalance, BULK))
+    row["rho_imbalance_bulk"] = round(float(spearmanr(imbalance[bulk], error[bulk]).statistic), 3)
+    twin = seed_twin(directory, result)
+    row["rho_twin_error"] = float("nan") if twin is None else \
+        round(float(spearmanr(error_map(twin.field, truth, nodes[inside]), error).statistic), 3)
     row["cpu"] = cpu_name()
     return row
+
+
+def seed_twin(directory: Path, result: Reconstruction) -> Reconstruction | None:
+    """The same case's result with the other seed beside ``directory`` (the suite's ``CASE`` and ``CASE_seed1``,
+    same dataset), or None. How well its actual error map ranks this one's is the share of the error that
+    repeats from run to run; the rest is the seed's, which a map computed from one run cannot foresee."""
+    name = directory.name
+    other = directory.parent / (name.removesuffix("_seed1") if name.endswith("_seed1") else f"{name}_seed1")
+    if not (other / "field.npz").is_file():
+        return None
+    twin = Reconstruction.load(other)
+    return twin if twin.source["dataset"] == result.source["dataset"] else None
 
 
 def main():

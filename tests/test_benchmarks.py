@@ -19,6 +19,7 @@ slow: the module fits in the default run.
 from __future__ import annotations
 
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -51,6 +52,13 @@ def _finished_reconstruction(tmp_path: Path) -> Path:
                  "--resolution", "8", "--allow-aliased", "--no-progress"])
     assert done.returncode == 0, done.stderr[-3000:]
     return result
+
+
+def _reconstruction_and_its_twin(tmp_path: Path) -> None:
+    """:func:`_finished_reconstruction` and a copy of it as its seed-1 twin: their error maps rank each other
+    perfectly (``rho_twin_error=1.0``)."""
+    result = _finished_reconstruction(tmp_path)
+    shutil.copytree(result, result.with_name(f"{result.name}_seed1"))
 
 
 # Per script: its arguments ({tmp}: pytest's tmp_path, {root}: this checkout), the lines its output must have
@@ -156,7 +164,8 @@ CASES = {
                           r"kitten: baseline / this checkout optimisation time [\d.]+x"],
                          ["tta/time_to_accuracy.csv", "tta/time_to_accuracy.png"]),
     "trust_ranking": (["{tmp}/suite/disk_100N", "--csv", "{tmp}/trust_ranking.csv"],
-                      [r"case=disk_100N nodes=\d+ trust_s=[\d.]+ .* rho_imbalance=[-\d.]+ .*", r"wrote .*"],
+                      [r"case=disk_100N nodes=\d+ trust_s=[\d.]+ .* rho_imbalance=[-\d.]+ .* rho_twin_error=1\.0 .*",
+                       r"wrote .*"],
                       ["trust_ranking.csv", "suite/disk_100N/trust.npz"]),
     "viewer": (["--frames", "2"],
                [r"scene +frames +256x256 fps +128x128 fps", r"disk_compression +dragging +[\d.]+ +[\d.]+",
@@ -169,7 +178,7 @@ CASES = {
 }
 # What a script reads that a user makes first (the accuracy suite's datasets and results), made tiny in {tmp}.
 PREPARE = {"deterministic_cost": lambda tmp: _disk_target(tmp / "disk_target"),
-           "trust_ranking": _finished_reconstruction}
+           "trust_ranking": _reconstruction_and_its_twin}
 
 
 def test_every_script_has_a_case():

@@ -7,8 +7,9 @@ Four things are measured on a lattice over the specimen (a grid's own nodes):
   the mean stress ``p`` that balances it best (:mod:`~mi_nest.reconstruct.equilibrium`), the largest of the
   cells around the node, averaged over its 3 x 3 x 3 neighbourhood (stress scales per box length). A true field
   leaves only its discretisation; a wrong one does not balance. This is the ``uncertainty``: on the accuracy
-  suite's twelve grid cases it ranks the actual error with Spearman correlations of 0.51 to 0.91
-  (``benchmarks/trust_ranking.py``, docs/reconstruction.md);
+  suite's twelve grid cases it ranks the actual error with Spearman correlations of 0.51 to 0.91, on 33 more
+  results 0.42 to 0.90, below 0.5 on three with low error that is mostly the seed's (two runs' errors rank each
+  other at 0.45 to 0.63 there; ``benchmarks/trust_ranking.py``, docs/reconstruction.md);
 
 - ``coverage``: the share of the training views whose specimen pixels have a ray through the node;
 - ``direction_spread``: ``3 lambda_min`` of the mean ``d d^T`` over those rays (1: directions from all around,
