@@ -263,6 +263,27 @@ def test_each_tab_keeps_its_own_controls_and_frames(viewer):
             browser.close()
 
 
+def test_a_tab_whose_controls_are_slow_to_build_still_gets_its_frame():
+    """On a busy machine a tab's first frame could finish before its controls were built; the render thread then
+    wrote its time into a status line that did not exist yet, died, and no tab got another frame (a CI failure).
+    The controls are slowed here to make that order certain."""
+    frames = FrameRenderer("disk_compression", {"load": "400"}, RESOLUTION, MOVING)
+    served = Viewer(frames, port=0)
+    build = served._controls
+
+    def slow_controls(client, state):
+        time.sleep(3.0)          # several frames' time at this size
+        return build(client, state)
+    served._controls = slow_controls
+    served.start()
+    try:
+        with _page(served) as page:
+            _wait_until_shown(page, served, lambda frame: True)
+            assert served._thread.is_alive()
+    finally:
+        served.stop()
+
+
 def test_the_first_view_fits_the_whole_part():
     """The kitten opened with its ears cut off: the fitted camera's frame holds every pixel of the part inside its
     border."""

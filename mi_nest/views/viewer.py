@@ -272,8 +272,6 @@ class Viewer:
 
     def _on_connect(self, client) -> None:
         tab = TabView(self.initial_state, self.frames.reference)
-        with self._lock:
-            self._tabs[client.client_id] = tab
         tab.status = self._controls(client, tab.state)
         self._place(client)
 
@@ -290,6 +288,10 @@ class Viewer:
                 tab.camera_moving = True
             self._wake.set()
         client.camera.on_update(moved)
+        # Only a tab with its status line may be drawn: the render thread writes the frame's time into it.
+        with self._lock:
+            self._tabs[client.client_id] = tab
+        self._wake.set()
 
     def _on_disconnect(self, client) -> None:
         with self._lock:
