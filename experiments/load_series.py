@@ -59,6 +59,9 @@ SERIES = {s.label: s for s in [
     Series("disk_300N", {"load": 100}, 3.0, from_zero="disk_300N_relative05"),
     Series("stacked_disks", {"load": 100}, 3.0),
     Series("disk_300N_90deg", {"load": 100}, 3.0),
+    # From zero, two of four seeds end on a strip along the bore (the suite's lame_cylinder_seed1/3).
+    Series("lame_cylinder", {"pressure": 0.5}, 4.0),
+    Series("lame_cylinder", {"pressure": 1.0}, 2.0, name="lame_cylinder_half"),
     Series("disk_1kN_256px", {"load": 200}, 5.0),
     # From 200 N the 256-px disk's low load ended at 15.3% (2% of its pixels aliased): a tenth of the load instead.
     Series("disk_1kN_256px", {"load": 100}, 10.0, name="disk_1kN_256px_from100N"),
@@ -107,7 +110,9 @@ def main():
             "--start", str(low_out), "--option", f"start_load_ratio={series.ratio:g}"))
         high = reconstruct(started, high_data, high_out, args.minutes - args.low_minutes, 200)["record"]
         history = high["history"]
-        zero = suite.get(series.from_zero or series.case, {})
+        # A seeded series against the suite's run from zero with the same seed, where the suite has one.
+        zero = suite.get(f"{series.case}_seed{args.seed}" if args.seed and not series.from_zero else "") \
+            or suite.get(series.from_zero or series.case, {})
         row = {"case": name, "suite_case": series.case, "test_load_options": " ".join(series.started),
                "defines": " ".join(f"{k}={v}" for k, v in case.defines.items()),
                "low": " ".join(f"{k}={v}" for k, v in series.low.items()), "ratio": series.ratio,
