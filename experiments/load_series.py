@@ -111,8 +111,8 @@ def main():
         high = reconstruct(started, high_data, high_out, args.minutes - args.low_minutes, 200)["record"]
         history = high["history"]
         # A seeded series against the suite's run from zero with the same seed, where the suite has one.
-        zero = suite.get(f"{series.case}_seed{args.seed}" if args.seed and not series.from_zero else "") \
-            or suite.get(series.from_zero or series.case, {})
+        same_seed = f"{series.case}_seed{args.seed}" if args.seed and not series.from_zero else None
+        zero = suite.get(same_seed) or suite.get(series.from_zero or series.case, {})
         row = {"case": name, "suite_case": series.case, "test_load_options": " ".join(series.started),
                "defines": " ".join(f"{k}={v}" for k, v in case.defines.items()),
                "low": " ".join(f"{k}={v}" for k, v in series.low.items()), "ratio": series.ratio,
