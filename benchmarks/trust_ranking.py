@@ -60,15 +60,16 @@ def rank(directory: Path) -> dict:
     row = {"case": directory.name, "nodes": int(inside.sum()), "trust_s": round(seconds, 1),
            "deviatoric_error": round(result.metrics.get("deviatoric_error", float("nan")), 4),
            "error_cv": round(float(np.std(error) / np.mean(error)), 3)}
+    inside_values = {term: getattr(trust, term).ravel()[inside] for term in TERMS if getattr(trust, term) is not None}
     for term in TERMS:
-        if getattr(trust, term) is None:  # a network keeps no Adam moments per node: no curvature spread
+        if term not in inside_values:  # a network keeps no Adam moments per node: no curvature spread
             row[f"rho_{term}"] = float("nan")
             continue
-        values = getattr(trust, term).ravel()[inside]
+        values = inside_values[term]
         finite = np.isfinite(values)
         row[f"rho_{term}"] = round(float(spearmanr(values[finite], error[finite]).statistic), 3)
     # Below the imbalance's 80th percentile: away from where it concentrates, does anything still rank the error?
-    imbalance = trust.imbalance.ravel()[inside]
+    imbalance = inside_values["imbalance"]
     bulk = np.isfinite(imbalance) & (imbalance < np.nanquantile(imbalance, BULK))
     row["rho_imbalance_bulk"] = round(float(spearmanr(imbalance[bulk], error[bulk]).statistic), 3)
     twin = seed_twin(directory, result)

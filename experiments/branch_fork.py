@@ -41,11 +41,15 @@ def checkpoint_seconds(directory: Path) -> float:
         return 0.0
 
 
+def reconstruct_arguments(data: Path, output: Path, minutes: float, seed: int) -> list[str]:
+    """``mi-nest reconstruct``'s arguments for the run and for each copy (which resumes from its checkpoint)."""
+    return [str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--allow-aliased", "--no-progress",
+            "--option", f"track_error_every={TRACK_EVERY}", "--option", f"seed={seed}"]
+
+
 def run_until(data: Path, output: Path, minutes: float, seed: int, at: float) -> None:
     """A run from zero, stopped as Ctrl-C stops it once its checkpoint has passed ``at`` seconds."""
-    command = [*CLI, "reconstruct", str(data), "-o", str(output), "--minutes", f"{minutes:g}", "--restart",
-               "--allow-aliased", "--no-progress", "--option", f"track_error_every={TRACK_EVERY}",
-               "--option", f"seed={seed}"]
+    command = [*CLI, "reconstruct", *reconstruct_arguments(data, output, minutes, seed), "--restart"]
     process = subprocess.Popen(command, cwd=HERE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     while process.poll() is None:
         if checkpoint_seconds(output) >= at:
@@ -103,9 +107,7 @@ def main():
     for seed in seeds:
         copy = args.output / name / f"seed{seed}"
         fork(prefix, copy, seed, args.seed)
-        run_command("reconstruct", [str(data), "-o", str(copy), "--minutes", f"{args.minutes:g}", "--allow-aliased",
-                                    "--no-progress", "--option", f"track_error_every={TRACK_EVERY}",
-                                    "--option", f"seed={seed}"])
+        run_command("reconstruct", reconstruct_arguments(data, copy, args.minutes, seed))
         record = json.loads((copy / "reconstruction.json").read_text())
         row = {"case": case.name, "seed": args.seed, "at": args.at, "fork_seconds": round(at, 1),
                "fork_iteration": iteration,
