@@ -151,6 +151,18 @@ DIAGNOSTIC_CASES += [replace(case, name=f"{case.name}_seed1", flags=(*case.flags
                              same_data_as=case.same_data_as or case.name,
                              note=f"diagnostic: {case.note}, with seed 1 (its run-to-run spread)")
                      for case in CASES if case.name not in SEEDED]
+# The neighbour loss (reconstruct/neighbours.py, --option neighbour_loss=1) on every yardstick case it takes
+# (straight rays, one band), then with seed 1 where the defaults' seeds part.
+NEIGHBOUR_FLAGS = ("--option", "neighbour_loss=1")
+NEIGHBOUR_CASES = [replace(case, name=f"{case.name}_neighbours", flags=(*case.flags, *NEIGHBOUR_FLAGS),
+                           same_data_as=case.same_data_as or case.name,
+                           note=f"diagnostic: {case.note}, with the neighbour loss")
+                   for case in CASES if "ior" not in case.defines and "bands" not in case.defines]
+NEIGHBOUR_CASES += [replace(case, name=f"{case.name}_seed1", flags=(*case.flags, "--option", "seed=1"),
+                            note=f"{case.note}, seed 1")
+                    for case in NEIGHBOUR_CASES if case.name.split("_neighbours")[0] in
+                    {"disk_300N_90deg", "stacked_disks", "lame_cylinder", "disk_600N", "disk_1kN_256px"}]
+DIAGNOSTIC_CASES += NEIGHBOUR_CASES
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}
 

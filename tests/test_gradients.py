@@ -282,3 +282,26 @@ def test_linear_gradients_through_refracting_surfaces_are_refused():
     with pytest.raises(ValueError, match="gradients through refracting surfaces need 'product' or 'magnus4'"):
         tracer.backpropagate_rays(loaded, rays, mi.Vector3f(1, 0, 0), traced,
                                   tuple(mi.Float(0) for _ in traced.state))
+
+
+def test_replayed_gradient_of_the_neighbour_loss_matches_finite_differences():
+    """The neighbour loss (reconstruct/neighbours.py) compares the rotation between two rays' Jones matrices with a
+    measured one: its gradient reaches both rays of each pair through the replay."""
+    from mi_nest.reconstruct.neighbours import relative_rotation_loss
+    loaded = _specimen()
+    integrator = mi.load_dict({"type": "photoelastic", "method": "product", "step_size": 0.4, "jitter": True,
+                               "max_bounces": 0})
+    field = _field("grid")
+    rays, _ = _batch()
+    pairs = RAYS // 2
+    measured = np.random.default_rng(5).normal(size=(pairs, 4))
+    measured /= np.linalg.norm(measured, axis=1, keepdims=True)
+
+    def loss(q):
+        index = dr.arange(mi.UInt32, pairs)
+        return relative_rotation_loss(tuple(dr.gather(mi.Float, x, index) for x in q),
+                                      tuple(dr.gather(mi.Float, x, index + pairs) for x in q), measured)
+
+    gradients, checked, _ = _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest=4)
+    assert checked >= 4
+    assert max(np.abs(g).max() for g in gradients.values()) > 1e-3

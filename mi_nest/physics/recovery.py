@@ -80,6 +80,15 @@ def quaternion_from_intensities(values: np.ndarray,
     The settings must fix the rotation on a plane of input states (rank 6 of
     the affine model), as the rig's 16 do, calibrated or nominal.
     """
+    return jones_and_polarisation(values, polariscopes)[0]
+
+
+def jones_and_polarisation(values: np.ndarray,
+                           polariscopes: Iterable[Polariscope] = tuple(MEASUREMENTS.values())
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`quaternion_from_intensities` and how much of the light the pixel kept polarised, ``(...)``: the
+    smaller singular value of the map the measurements fix on the plane of input states, 1 for one Jones matrix
+    and less where the rays a pixel averages saw different ones (fringes denser than the pixels) or noise."""
     polariscopes = tuple(polariscopes)
     values = np.asarray(values, dtype=np.float64)
     if values.shape[-1] != len(polariscopes):
@@ -90,9 +99,9 @@ def quaternion_from_intensities(values: np.ndarray,
         raise ValueError(f"these {len(polariscopes)} polariscope settings do not determine the Jones matrix (rank "
                          f"{rank} of the 6 needed: two input states, each analysed in three independent ways)")
     partial = ((values - offset) @ np.linalg.pinv(A, rcond=1e-9).T).reshape(values.shape[:-1] + (3, 3))
-    U, _, Vt = np.linalg.svd(partial)
+    U, singular, Vt = np.linalg.svd(partial)
     # The rotation closest to the partial map: flip the weakest axis if that keeps det = +1.
     flip = np.ones(U.shape[:-1])
     flip[..., 2] = np.sign(np.linalg.det(U @ Vt))
     flip[flip == 0] = 1.0
-    return quaternion_from_rotation((U * flip[..., None, :]) @ Vt)
+    return quaternion_from_rotation((U * flip[..., None, :]) @ Vt), singular[..., 1]

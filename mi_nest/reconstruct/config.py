@@ -92,8 +92,15 @@ class Optimiser:
     # One CPU thread, so that the gradients' scatter-adds sum in one order and a seeded run of a given number of
     # iterations repeats bit for bit (with two threads their order varies: runs end a few 0.01% apart).
     deterministic: bool = False
+    # Weight of the neighbour loss (reconstruct/neighbours.py): the rotation from each of batch_size / 2 pixels'
+    # Jones matrix to a neighbour's against the one the measurements give; 0: the intensities alone.
+    neighbour_loss: float = 0.0
+    neighbour_share: float = 0.5     # the share of the run, from its start, in which the neighbour loss acts
 
     def __post_init__(self):
+        if not (math.isfinite(self.neighbour_loss) and self.neighbour_loss >= 0):
+            raise ValueError(f"neighbour_loss must be a non-negative weight, got {self.neighbour_loss}")
+        _require_share("neighbour_share", self.neighbour_share, closed=True, positive=True)
         for name in ("batch_size", "views_per_batch"):
             whole_number(name, getattr(self, name))
         whole_number("seed", self.seed, minimum=0)

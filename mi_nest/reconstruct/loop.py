@@ -36,6 +36,7 @@ from .evaluation import SampledViewLoss
 from .fields import make_field, refined
 from .forward import forward_step, make_tracer
 from .losses import generator_loss, l1_loss
+from .neighbours import NeighbourPairs, NeighbourTargets
 from .rays import ViewRays, stratified
 from .repair import refill
 from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
@@ -102,6 +103,11 @@ class Run:
                            if config.model.method == TWO_STEP or config.schedule.warm_start else None)
         self.error_probe = None
         self.channels = ChannelModel.of(dataset, scene, config.model.spectral_step)
+        self.neighbour_targets = None   # the neighbour loss's recovered Jones matrices, view by view
+        if config.optimiser.neighbour_loss and (self.channels.bands is not None
+                                                or make_tracer(config, self.field, scene).plan(
+                                                    scene, self.view_rays.sensor, marching=False).setup.refracting):
+            raise ValueError(NeighbourPairs.REFUSED)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the mean stress solver on the current grid (prior and branch repair)
@@ -317,15 +323,22 @@ class Run:
         fitting_retardance = self.fitting_retardance()
         if fitting_retardance:
             targets = self.retardance.at(positions, rows, columns)
-        rays, right = self.view_rays.rays(*(np.repeat(a, samples) for a in (positions, rows, columns)),
-                                          jitter=stratified(len(rows), samples, self.rng))
+        pairs = self._neighbour_pairs(positions, rows, columns) if self.neighbour_loss_acts() else None
+        pixel_rays = [np.repeat(a, samples) for a in (positions, rows, columns)]
+        jitter = stratified(len(rows), samples, self.rng)
+        if pairs is not None:
+            # Traced in one batch with the pixels' own rays, through the pixel centres.
+            pixel_rays = [np.concatenate([a, b]) for a, b in zip(pixel_rays, pairs.pixels)]
+            jitter = np.concatenate([jitter, np.full((len(pairs.pixels[0]), 2), 0.5)])
+        rays, right = self.view_rays.rays(*pixel_rays, jitter=jitter)
         self.optimizer.set_learning_rate(self.learning_rate())
         seed = optimiser.seed * 1_000_003 + self.iteration
         # The step follows the grid's spacing as it stands (coarse-to-fine).
         step_size = forward_step(self.config, self.field)
         traced = tracer.trace_rays(self.scene, rays, right, seed=seed, field=self.field, step_size=step_size,
                                    view=self.channels.view)
-        length = traced.length
+        own_rays = len(rows) * samples
+        length = traced.length if pairs is None else _head(traced.length, own_rays)
         admitted = None
         limit = self.path_limit(length, samples)
         if limit is not None:
@@ -337,8 +350,12 @@ class Run:
             if fitting_retardance:
                 loss = generator_loss(leaf, targets, samples)
             else:
-                loss = l1_loss(traced.jones(leaf), targets, samples, admitted, self.channels)
+                jones = traced.jones(leaf)
+                own = jones if pairs is None else type(jones)(_head(x, own_rays) for x in jones)
+                loss = l1_loss(own, targets, samples, admitted, self.channels)
             total = loss
+            if pairs is not None:
+                total = total + optimiser.neighbour_loss * pairs.loss(jones, own_rays)
             regulariser = self.config.regulariser
             # Coarse stages smooth plainly to choose the branch; the finest spares stress concentrations.
             # The scale is read only where it changes a weight: a grid's smoothness, relative to the field.
@@ -377,6 +394,18 @@ class Run:
         if self.averaging():
             self._add_to_average()
         return value
+
+    def neighbour_loss_acts(self) -> bool:
+        """Whether this iteration adds the neighbour loss: over its share of the run, in the joint fit."""
+        optimiser = self.config.optimiser
+        return bool(optimiser.neighbour_loss) and not self.fitting_retardance() \
+            and self.progress() < optimiser.neighbour_share
+
+    def _neighbour_pairs(self, positions: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> NeighbourPairs:
+        """Every other pixel of the batch and a neighbour of each (:mod:`.neighbours`)."""
+        if self.neighbour_targets is None:
+            self.neighbour_targets = NeighbourTargets(self.dataset)
+        return self.neighbour_targets.pairs(positions[::2], rows[::2], columns[::2], self.rng)
 
     def _free_surface(self) -> FreeSurfacePrior:
         """The free-surface prior's points, found once, about a 64th of the box apart."""
@@ -519,6 +548,11 @@ class Run:
         if origin is not None:
             source.update(scene_file=str(origin[0]), defines=origin[1])
         return Reconstruction(self.field, self.config, self.history, {}, self.seconds, source)
+
+
+def _head(values: mi.Float, count: int) -> mi.Float:
+    """The first ``count`` entries of ``values`` (differentiable)."""
+    return dr.gather(mi.Float, values, dr.arange(mi.UInt32, count))
 
 
 def _flat(values):
