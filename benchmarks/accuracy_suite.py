@@ -162,6 +162,9 @@ NEIGHBOUR_CASES += [replace(case, name=f"{case.name}_seed1", flags=(*case.flags,
                             note=f"{case.note}, seed 1")
                     for case in NEIGHBOUR_CASES if case.name.split("_neighbours")[0] in
                     {"disk_300N_90deg", "stacked_disks", "lame_cylinder", "disk_600N", "disk_1kN_256px"}]
+# The Lame cylinder's defaults failed with seeds 1 and 3 of four (34.0% and 21.0%).
+NEIGHBOUR_CASES += [replace(case, name="lame_cylinder_neighbours_seed3", flags=(*NEIGHBOUR_FLAGS, "--option", "seed=3"),
+                            note=f"{case.note}, seed 3") for case in NEIGHBOUR_CASES if case.name == "lame_cylinder_neighbours"]
 DIAGNOSTIC_CASES += NEIGHBOUR_CASES
 # --quick: the same cases, small, to check a change in a few minutes (not comparable with the full suite).
 QUICK = {"rotations": 6, "res": 32, "minutes": 10 / 60}

@@ -159,3 +159,25 @@ def test_a_warm_start_fits_the_unwrapped_data_then_the_intensities(small_disk, m
         optimize(scene, data, progress=False, method="two-step", warm_start=0.3)
     with pytest.raises(ValueError, match="warm_start"):
         optimize(scene, data, progress=False, warm_start=1.0)
+
+
+def test_the_closed_form_recovery_is_the_closest_rotation_and_its_polarisation_the_smaller_singular_value():
+    """Against the orthogonal Procrustes solution by SVD of the partial map the measurements fix (and its second
+    singular value), on noisy pixels and on pixels that average two Jones matrices."""
+    from mi_nest.physics.recovery import _affine_model, jones_and_polarisation
+    q, other = _random_quaternions(3000, seed=4), _random_quaternions(3000, seed=5)
+    scopes = tuple(MEASUREMENTS.values())
+    noisy = _jones_calculus_intensities(q) + np.random.default_rng(6).normal(scale=0.03, size=(3000, 16))
+    averaged = (_jones_calculus_intensities(q) + _jones_calculus_intensities(other)) / 2
+    offset, A = _affine_model(scopes)
+    for values in (noisy, averaged):
+        partial = ((values - offset) @ np.linalg.pinv(A, rcond=1e-9).T).reshape(-1, 3, 3)
+        U, singular, Vt = np.linalg.svd(partial)
+        flip = np.ones((len(values), 3))
+        flip[:, 2] = np.sign(np.linalg.det(U @ Vt))
+        closest = quaternion_from_rotation((U * flip[:, None, :]) @ Vt)
+        recovered, polarisation = jones_and_polarisation(values, scopes)
+        assert _same_up_to_sign(recovered, closest).max() < 1e-9
+        np.testing.assert_allclose(polarisation, singular[:, 1], atol=1e-9)
+    # Two Jones matrices averaged keep less of the light polarised than one does.
+    assert np.median(polarisation) < 0.9
