@@ -98,7 +98,7 @@ def _input_plane(polariscopes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                          f"{rank} of the 6 needed: two input states, each analysed in three independent ways)")
     inverse = np.linalg.pinv(A, rcond=1e-9)
     plane = (inverse @ A)[:3, :3]
-    values, vectors = np.linalg.eigh((plane + plane.T) / 2)
+    _, vectors = np.linalg.eigh((plane + plane.T) / 2)     # eigenvalues 0, 1, 1
     return inverse, vectors[:, 2], vectors[:, 1]
 
 
@@ -111,7 +111,8 @@ def jones_and_polarisation(values: np.ndarray,
 
     The rotation closest to that map (orthogonal Procrustes) in closed form: the images ``u, v`` of the plane's
     basis ``a, b`` are made orthonormal by the inverse square root of their 2 x 2 Gram matrix (the polar factor of
-    ``[u v]``), and ``a x b`` goes to their cross product; no SVD per pixel (0.1 us a pixel against 2.7).
+    ``[u v]``), and ``a x b`` goes to their cross product; no SVD per pixel (80 to 130 times faster than one, side by side on
+    an AMD EPYC Zen 4, the same rotations to 1e-13: ``tests/test_two_step.py``).
     """
     polariscopes = tuple(polariscopes)
     values = np.asarray(values, dtype=np.float64)

@@ -47,7 +47,7 @@ def neighbours(rows: np.ndarray, columns: np.ndarray, resolution: tuple[int, int
 
 class NeighbourTargets:
     """Each view's Jones quaternions and polarisation recovered from its measurements (``physics/recovery.py``),
-    computed when first needed and kept (17 floats a pixel)."""
+    computed when first needed and kept (5 floats a pixel)."""
 
     def __init__(self, dataset: Dataset):
         self.dataset = dataset
