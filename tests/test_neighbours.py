@@ -9,6 +9,8 @@ from mi_nest.physics import su2
 from mi_nest.physics.recovery import jones_and_polarisation
 from mi_nest.reconstruct import optimize
 from mi_nest.reconstruct.channels import ChannelModel
+from mi_nest.reconstruct.config import NEIGHBOUR_WEIGHT, TWO_STEP, OptimizeConfig
+from mi_nest.reconstruct.fields import settle
 from mi_nest.reconstruct.losses import l1_loss
 from mi_nest.reconstruct.neighbours import NeighbourTargets, neighbours
 from mi_nest.reconstruct.rays import ViewRays
@@ -119,3 +121,42 @@ def test_options_and_data_the_neighbour_loss_cannot_take_are_refused(disk, tmp_p
         optimize(mi_nest.load_scene("disk_compression", res=32, load=LOAD, contact_width=4, ior=1.55),
                  dataset.directory, progress=False, iterations=2, batch_size=32, resolution=6, evaluate_views=1,
                  neighbour_loss=1.0)
+
+
+def test_the_defaults_fit_the_neighbour_loss_where_it_applies_and_the_fringes_are_resolved(disk, tmp_path):
+    dataset, scene = disk
+    extent = np.array([40.0, 40.0, 6.0])
+    settled = settle(OptimizeConfig(), extent, aliased_share=0.05)
+    assert settled.optimiser.neighbour_loss == NEIGHBOUR_WEIGHT
+    # Dense fringes (the same share of 128-pixel images is denser at 64), the Two-step, a weight given, and a scene
+    # or data it cannot take.
+    assert settle(OptimizeConfig(), extent, aliased_share=0.15).optimiser.neighbour_loss == 0.0
+    assert settle(OptimizeConfig(), extent, aliased_share=0.06, pixels=128).optimiser.neighbour_loss == 0.0
+    assert settle(OptimizeConfig(method=TWO_STEP), extent).optimiser.neighbour_loss == 0.0
+    assert settle(OptimizeConfig(neighbour_loss=0.3), extent, aliased_share=0.15).optimiser.neighbour_loss == 0.3
+    assert settle(OptimizeConfig(), extent, neighbours_apply=False).optimiser.neighbour_loss == 0.0
+    quick = dict(progress=False, iterations=2, batch_size=32, resolution=6, evaluate_views=1)
+    on = optimize(scene, dataset.directory, **quick)
+    assert on.config.optimiser.neighbour_loss == NEIGHBOUR_WEIGHT
+    assert "the neighbour loss at weight 1 over the first 50% of the run (the fringes resolved" \
+        in on.source["choices"][1]
+    with pytest.warns(RuntimeWarning, match="ior"):
+        refracted = optimize(mi_nest.load_scene("disk_compression", res=32, load=LOAD, contact_width=4, ior=1.55),
+                             dataset.directory, **quick)
+    assert refracted.config.optimiser.neighbour_loss == 0.0
+    assert "no neighbour loss (the scene refracts or the data have bands)" in refracted.source["choices"][1]
+
+
+def test_the_recovered_views_kept_stay_within_the_dataset_s_own_cache(disk):
+    dataset, _ = disk
+    width, height = dataset.resolution
+    view_bytes = 16 * 4 * width * height
+    small = mi_nest.Dataset(dataset.directory, cache_bytes=2 * view_bytes)
+    targets, unbounded = NeighbourTargets(small), NeighbourTargets(dataset)
+    assert targets.views_kept == 2 and unbounded.views_kept >= len(dataset)
+    first = targets.view(0).copy()
+    for position in (1, 2, 0):
+        targets.view(position)
+        assert len(targets._views) <= 2
+    np.testing.assert_array_equal(targets.view(0), first)
+    np.testing.assert_array_equal(unbounded.view(0), first)

@@ -144,3 +144,4 @@ def test_dense_fringes_choose_the_finest_grid_and_say_why(one_axis_and_two_axes)
     finer = choices(OptimizeConfig(), settle(OptimizeConfig(), box, 0.08, pixels=128), box, dataset, 0.08, 128)
     assert "more than 10% of the pixels at 64 across (about 16%; 8% at 128)" in finer[1]
     assert "eased above a field RMS of 0.5 stress scales, for dense fringes" in lines[1]
+    assert "; no neighbour loss (the fringes alias in more than 10% of the pixels); " in lines[1]

@@ -92,6 +92,11 @@ class Dataset:
         self._splits = {}
         self._cache_bytes = default_cache_bytes() if cache_bytes is None else int(cache_bytes)
 
+    @property
+    def cache_bytes(self) -> int:
+        """The most bytes of decoded views kept in memory."""
+        return self._cache_bytes
+
     @cached_property
     def fingerprint(self) -> str:
         """The dataset as it stood when first asked: its index and each rotation file's size and modification

@@ -38,9 +38,9 @@ def data_facts(dataset: Dataset) -> str:
 
 
 def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, dataset: Dataset,
-            aliased_share: float = 0.0, pixels: int = DENSE_FRINGES_PIXELS) -> list[str]:
+            aliased_share: float = 0.0, pixels: int = DENSE_FRINGES_PIXELS, neighbours_apply: bool = True) -> list[str]:
     """One line on the data, one on what the run chose and why (``asked``: before :func:`~.fields.settle`, which
-    was given the same ``extent``, ``aliased_share`` and ``pixels``)."""
+    was given the same ``extent``, ``aliased_share``, ``pixels`` and ``neighbours_apply``)."""
     field = settled.field
     if field.on_lattice:
         nx, ny, nz = grid_shape(field.resolution, extent)
@@ -81,6 +81,7 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
         smoothing = "the regulariser as given"
     if regulariser.equilibrium:
         smoothing += f", equilibrium prior {regulariser.equilibrium:g}"
+    smoothing += "; " + _neighbour_choice(asked, settled, aliased_share, pixels, neighbours_apply)
     schedule = settled.schedule
     budget = f"{schedule.iterations:,} iterations" + (
         "" if schedule.time_limit is None else f" or {schedule.time_limit / 60:.3g} minutes, whichever ends first")
@@ -91,3 +92,23 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
             budget += " (a started run's, below the descent's: its first steps would throw the start off)"
     return [f"data: {data_facts(dataset)}",
             f"chose: {representation}; {METHOD_NAMES[settled.model.method]} in {step}; {smoothing}; {budget}"]
+
+
+def _neighbour_choice(asked: OptimizeConfig, settled: OptimizeConfig, aliased_share: float, pixels: int,
+                      neighbours_apply: bool) -> str:
+    """What the run fits of the neighbour loss, and why."""
+    optimiser = settled.optimiser
+    if asked.optimiser.neighbour_loss is not None:
+        why = "neighbour_loss"
+    elif not neighbours_apply:
+        why = "the scene refracts or the data have bands"
+    elif settled.model.method == TWO_STEP:
+        why = "the Two-step baseline fits the retardance alone"
+    elif dense_fringes(aliased_share, pixels):
+        why = f"the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the pixels"
+    else:
+        why = "the fringes resolved by the pixels, straight rays, one band"
+    if not optimiser.neighbour_loss:
+        return f"no neighbour loss ({why})"
+    return (f"the neighbour loss at weight {optimiser.neighbour_loss:g} over the first "
+            f"{100 * optimiser.neighbour_share:.0f}% of the run ({why})")

@@ -26,8 +26,8 @@ from ..fields.base import StressField
 from ..io.grid import grid_nodes
 from ..physics.aliasing import UNRESOLVED_SHARE
 from . import equilibrium
-from .config import (DENSE_REGULARISED, REGULARISED, STARTED_LEARNING_RATE, FieldConfig, OptimizeConfig, Optimiser,
-                     Regulariser)
+from .config import (DENSE_REGULARISED, NEIGHBOUR_WEIGHT, REGULARISED, STARTED_LEARNING_RATE, TWO_STEP, FieldConfig,
+                     OptimizeConfig, Optimiser, Regulariser)
 from .kinds import AUTO, GRID, HASHGRID, KINDS, MLP
 
 DEVIATORIC = ("xx", "yy", "yz", "zx", "xy")
@@ -105,13 +105,14 @@ def choose_kind(config: FieldConfig, extent: np.ndarray) -> str:
 
 def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.0,
            ease_default_smoothness: bool = True, slow_started_steps: bool = True,
-           pixels: int = DENSE_FRINGES_PIXELS) -> OptimizeConfig:
+           pixels: int = DENSE_FRINGES_PIXELS, neighbours_apply: bool = True) -> OptimizeConfig:
     """``config`` with its field's kind and resolution decided for a specimen of bounding-box ``extent`` and data
     whose fringes alias in ``aliased_share`` of the specimen's pixels in images ``pixels`` across; on dense fringes
     (:func:`dense_fringes`) a grid's default regulariser becomes :data:`~.config.DENSE_REGULARISED` (unless
     ``ease_default_smoothness`` is off: the user gave it). A run with a start field has one stage, and the default
     learning rate becomes :data:`~.config.STARTED_LEARNING_RATE` (unless ``slow_started_steps`` is off: the user
-    gave one)."""
+    gave one). A neighbour loss left to the defaults weighs :data:`~.config.NEIGHBOUR_WEIGHT` where
+    :func:`default_neighbour_loss` takes it (``neighbours_apply``: the scene and the data allow it), else 0."""
     resolution = config.field.resolution
     if resolution is None:
         resolution = default_resolution(extent, aliased_share, pixels)
@@ -125,6 +126,9 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
     settled = config.settled(kind, resolution)
     if ease_default_smoothness and dense_fringes(aliased_share, pixels) and settled.regulariser == REGULARISED:
         settled = replace(settled, regulariser=DENSE_REGULARISED)
+    if settled.optimiser.neighbour_loss is None:
+        weight = NEIGHBOUR_WEIGHT if default_neighbour_loss(settled, aliased_share, pixels, neighbours_apply) else 0.0
+        settled = replace(settled, optimiser=replace(settled.optimiser, neighbour_loss=weight))
     if settled.schedule.start is not None:
         # The start has chosen the branch that the coarse stages and the path curriculum are there to choose.
         settled = replace(settled, schedule=replace(settled.schedule, coarse_to_fine=False, path_curriculum=0.0))
@@ -133,6 +137,12 @@ def settle(config: OptimizeConfig, extent: np.ndarray, aliased_share: float = 0.
             rate = max(STARTED_LEARNING_RATE, optimiser.final_learning_rate)
             settled = replace(settled, optimiser=replace(optimiser, learning_rate=rate))
     return settled
+
+
+def default_neighbour_loss(config: OptimizeConfig, aliased_share: float, pixels: int, neighbours_apply: bool) -> bool:
+    """Whether the defaults fit the neighbour loss: where the scene and the data allow it (``neighbours_apply``), the
+    fringes are resolved (not :func:`dense_fringes`) and the run descends (not the Two-step baseline)."""
+    return neighbours_apply and not dense_fringes(aliased_share, pixels) and config.model.method != TWO_STEP
 
 
 def grid_shape(resolution: int, extent: np.ndarray) -> tuple[int, int, int]:

@@ -12,6 +12,7 @@ it, nothing is integrated along the image, so a pixel that aliases spoils its ow
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import drjit as dr
@@ -22,6 +23,8 @@ from ..arrays import device_array
 from ..dataset import Dataset
 from ..physics import su2
 from ..physics.recovery import jones_and_polarisation
+from ..scene import scene_sensor
+from ..tracer.setup import SceneSetup
 
 # Image steps (row, column) to a pixel's four neighbours.
 STEPS = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)])
@@ -31,6 +34,12 @@ STEPS = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)])
 POLARISATION_POWER = 4
 # Keeps the square root's gradient finite where the two relative rotations agree.
 SMOOTHING = 1e-4
+
+
+def neighbour_loss_applies(scene: mi.Scene, dataset: Dataset) -> bool:
+    """Whether the neighbour loss can be fitted to ``dataset`` in ``scene``: straight rays (no surface refracts)
+    at one wavelength (no bands); where it cannot, a weight given is refused (:attr:`NeighbourPairs.REFUSED`)."""
+    return dataset.bands is None and not SceneSetup(scene, scene_sensor(scene), marching=False).refracting
 
 
 def neighbours(rows: np.ndarray, columns: np.ndarray, resolution: tuple[int, int],
@@ -47,17 +56,25 @@ def neighbours(rows: np.ndarray, columns: np.ndarray, resolution: tuple[int, int
 
 class NeighbourTargets:
     """Each view's Jones quaternions and polarisation recovered from its measurements (``physics/recovery.py``),
-    computed when first needed and kept (5 floats a pixel)."""
+    computed when first needed and kept (5 floats a pixel), the least recently used dropped past as many views as
+    the dataset's own cache holds of their measurements (``views_kept``): never more than 5/16 of its memory."""
 
     def __init__(self, dataset: Dataset):
         self.dataset = dataset
-        self._views = {}
+        width, height = dataset.resolution
+        view_bytes = len(dataset.channels) * np.dtype(np.float32).itemsize * width * height
+        self.views_kept = max(1, dataset.cache_bytes // view_bytes)
+        self._views = OrderedDict()
 
     def view(self, position: int) -> np.ndarray:
         """``(H, W, 5)``: rotation ``position``'s recovered quaternions and, last, their polarisation."""
-        if position not in self._views:
+        if position in self._views:
+            self._views.move_to_end(position)
+        else:
             q, polarisation = jones_and_polarisation(self.dataset.measurements(position), self.dataset.polariscopes())
             self._views[position] = np.concatenate([q, polarisation[..., None]], axis=-1).astype(np.float32)
+            if len(self._views) > self.views_kept:
+                self._views.popitem(last=False)
         return self._views[position]
 
     def relative(self, positions: np.ndarray, rows: np.ndarray, columns: np.ndarray, next_rows: np.ndarray,

@@ -30,6 +30,7 @@ from .config import LEARNING_RATE_OPTIONS, REGULARISER_OPTIONS, TWO_STEP, Optimi
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
+from .neighbours import neighbour_loss_applies
 from .repair import repair_lines
 from .start import start_line
 from .trust import TRUST_FILE, trust_map
@@ -83,9 +84,10 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     aliasing = dataset.index.get("fringe_aliasing")
     aliased_share = aliasing["mean_fraction"] if aliasing else 0.0
     pixels = max(dataset.resolution)
+    neighbours_apply = neighbour_loss_applies(scene, dataset)
     asked, config = config, settle(config, high - low, aliased_share, ease_default_smoothness=not regulariser_given,
-                                   slow_started_steps=not rate_given, pixels=pixels)
-    chosen = choices(asked, config, high - low, dataset, aliased_share, pixels)
+                                   slow_started_steps=not rate_given, pixels=pixels, neighbours_apply=neighbours_apply)
+    chosen = choices(asked, config, high - low, dataset, aliased_share, pixels, neighbours_apply)
     if progress:
         print("\n".join(chosen), flush=True)
     scale = stress_scale(media, low, high)
