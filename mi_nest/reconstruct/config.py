@@ -248,7 +248,7 @@ DENSE_REGULARISED = replace(REGULARISED, relative_to=0.5)
 # more than DENSE_FRINGES_SHARE aliased), straight rays, one band, a descent (not the Two-step). There it met 15%
 # where the intensities alone stopped on a wrapped minimum (the accuracy suite, 10 minutes each: the 300 N disk over
 # 90 degrees 8.7% and 6.9% against 54.8% and 55.6%, the Lame cylinder's seeds 1 and 3 2.6% and 2.5% against 34.0%
-# and 21.0%) and left the other seven such cases as they were (the targets 4.6% and 9.8%, the networks, the bracket,
+# and 21.0%) and left the other six such cases as they were (the targets 4.6% and 9.8%, the networks, the bracket,
 # Boussinesq); on dense fringes it changed little (the 300 N disk 17.5% against 18.6%) or broke the run where the
 # axes turn along the rays (the shaft in torsion 106% against 2.1%, the stacked disks 43.1% against 11% to 30%).
 NEIGHBOUR_WEIGHT = 1.0
