@@ -36,7 +36,7 @@ from .evaluation import SampledViewLoss
 from .fields import make_field, refined
 from .forward import forward_step, make_tracer
 from .losses import generator_loss, l1_loss
-from .neighbours import NeighbourPairs, NeighbourTargets, neighbour_loss_applies
+from .neighbours import NeighbourPairs, NeighbourTargets
 from .rays import ViewRays, stratified
 from .repair import refill
 from .start import SCALE_VIEWS, best_scale, start_field, starting_nodes
@@ -104,8 +104,6 @@ class Run:
         self.error_probe = None
         self.channels = ChannelModel.of(dataset, scene, config.model.spectral_step)
         self.neighbour_targets = None   # the neighbour loss's recovered Jones matrices, view by view
-        if config.optimiser.neighbour_loss and not neighbour_loss_applies(scene, dataset):
-            raise ValueError(NeighbourPairs.REFUSED)
         self.path_range = None          # (shortest, longest) path of the curriculum, from the first batch
         self.magnitude_points = None    # where _require_sane_field samples the field, chosen at its first call
         self._balance = None            # the mean stress solver on the current grid (prior and branch repair)

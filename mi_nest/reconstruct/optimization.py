@@ -30,7 +30,7 @@ from .config import LEARNING_RATE_OPTIONS, REGULARISER_OPTIONS, TWO_STEP, Optimi
 from .evaluation import evaluate, heldout_predictions
 from .fields import settle
 from .loop import Run
-from .neighbours import neighbour_loss_applies
+from .neighbours import NeighbourPairs, neighbour_loss_applies
 from .repair import repair_lines
 from .start import start_line
 from .trust import TRUST_FILE, trust_map
@@ -85,6 +85,8 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
     aliased_share = aliasing["mean_fraction"] if aliasing else 0.0
     pixels = max(dataset.resolution)
     neighbours_apply = neighbour_loss_applies(scene, dataset)
+    if config.optimiser.neighbour_loss and not neighbours_apply:
+        raise ValueError(NeighbourPairs.REFUSED)
     asked, config = config, settle(config, high - low, aliased_share, ease_default_smoothness=not regulariser_given,
                                    slow_started_steps=not rate_given, pixels=pixels, neighbours_apply=neighbours_apply)
     chosen = choices(asked, config, high - low, dataset, aliased_share, pixels, neighbours_apply)
