@@ -18,6 +18,7 @@ slow: the module fits in the default run.
 """
 from __future__ import annotations
 
+import importlib
 import re
 import shutil
 import subprocess
@@ -69,7 +70,7 @@ CASES = {
                        [r"disk_100N: [\d.]+% in [\d.]+ s \(\d+ iterations, grid .*; target 5%: (yes|no)\)",
                         r"\| case \| data \| options \| time \| iterations \| deviatoric error \|.*",
                         r"\| disk_100N \(the disk target\) \| disk_compression load=100 contact_width=4, 6x6 .*",
-                        r"\| disk_100N \| [\d.]+% \(seed 0\), [\d.]+% \(seed 1\) \| [\d.]+ points \| "
+                        r"\| disk_100N \| [\d.]+ \| [\d.]+% \(seed 0\), [\d.]+% \(seed 1\) \| [\d.]+ points \| "
                         r"[\d,]+, [\d,]+ \|"],
                        ["results/accuracy_suite_quick.csv", "results/accuracy_suite_quick.png"]),
     "bands": (["--levels", "300", "--seeds", "0", "--minutes", "0.02", "--res", "8", "--data", "{tmp}/data",
@@ -202,3 +203,41 @@ def test_benchmark_runs(name, tmp_path):
             f"benchmarks/{name}.py printed no line like {pattern!r}:\n{done.stdout[-3000:]}"
     for path in written:
         assert (tmp_path / path).is_file(), f"benchmarks/{name}.py did not write {path}"
+
+
+def _accuracy_suite():
+    sys.path.insert(0, str(ROOT / "benchmarks"))      # the script and its own imports (reconstruction.cpu_name)
+    try:
+        return importlib.import_module("accuracy_suite")
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_the_suite_keeps_its_rows_when_a_run_adds_a_column(tmp_path):
+    """A CSV written before a column existed takes a new run's row with it: nothing the earlier runs measured is
+    lost, and their empty cell reads as the neighbour loss off (the defaults before it)."""
+    suite = _accuracy_suite()
+    path = tmp_path / "suite.csv"
+    suite.write_rows([{"case": "disk_100N", "flags": "", "deviatoric_error": "0.046", "iterations": "55755"}], path)
+    rows = suite.read_rows(path) + [{"case": "disk_100N_seed1", "flags": "--option seed=1", "deviatoric_error": 0.047,
+                                     "iterations": 37657, "neighbour_loss": 1.0}]
+    suite.write_rows(rows, path)
+    again = suite.read_rows(path)
+    assert [row["case"] for row in again] == ["disk_100N", "disk_100N_seed1"]
+    assert [suite.neighbour_weight(row) for row in again] == [0.0, 1.0]
+
+
+def test_the_suite_spread_compares_seeds_of_one_configuration():
+    suite = _accuracy_suite()
+    rows = [{"case": "disk_100N", "flags": "", "deviatoric_error": "0.046", "iterations": "55755",
+             "neighbour_loss": "0.0"},
+            {"case": "disk_100N_seed1", "flags": "--option seed=1", "deviatoric_error": "0.046",
+             "iterations": "52582", "neighbour_loss": "0.0"},
+            {"case": "disk_100N_neighbours_seed1", "flags": "--option neighbour_loss=1 --option seed=1",
+             "deviatoric_error": "0.047", "iterations": "37657", "neighbour_loss": "1.0"}]
+    table = suite.spread(rows)
+    assert "| disk_100N | 0 | 4.6% (seed 0), 4.6% (seed 1) | 0.00 points | 55,755, 52,582 |" in table
+    assert "| disk_100N | 1 |" not in table         # one seed under the loss: no spread yet
+    rows.append({"case": "disk_100N_neighbours", "flags": "--option neighbour_loss=1", "deviatoric_error": "0.046",
+                 "iterations": "40821", "neighbour_loss": "1.0"})
+    assert "| disk_100N | 1 | 4.6% (seed 0), 4.7% (seed 1) | 0.10 points | 40,821, 37,657 |" in suite.spread(rows)
