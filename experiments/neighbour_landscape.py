@@ -70,8 +70,12 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     names = list(dict.fromkeys(row["dataset"] for row in rows))
-    figure, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
-    for axis, name in zip(axes[0], names):
+    columns = min(len(names), 4)
+    lines = -(-len(names) // columns)
+    figure, axes = plt.subplots(lines, columns, figsize=(4.2 * columns, 3.4 * lines), squeeze=False)
+    for axis in axes.flat[len(names):]:
+        axis.set_visible(False)
+    for axis, name in zip(axes.flat, names):
         mine = [row for row in rows if row["dataset"] == name]
         for key, label in (("intensity_loss", "intensities (L1)"), ("neighbour_loss", "neighbours")):
             values = np.array([row[key] for row in mine])

@@ -47,12 +47,7 @@ def choices(asked: OptimizeConfig, settled: OptimizeConfig, extent: np.ndarray, 
         if asked.field.resolution is not None:
             why = "--resolution"
         elif dense_fringes(aliased_share, pixels):
-            why = (f"the finest default: the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the "
-                   "pixels")
-            if pixels != DENSE_FRINGES_PIXELS:
-                scaled = share_at_reference(aliased_share, pixels)
-                why += (f" at {DENSE_FRINGES_PIXELS} across (about {100 * scaled:.0f}%; {100 * aliased_share:.0f}% "
-                        f"at {pixels})")
+            why = f"the finest default: {_dense(aliased_share, pixels)}"
         else:
             why = (f"the coarsest of {', '.join(map(str, DEFAULT_RESOLUTIONS))} nodes along the longest axis with "
                    f"{MIN_NODES_ACROSS} across the thinnest side")
@@ -105,10 +100,20 @@ def _neighbour_choice(asked: OptimizeConfig, settled: OptimizeConfig, aliased_sh
     elif settled.model.method == TWO_STEP:
         why = "the Two-step baseline fits the retardance alone"
     elif dense_fringes(aliased_share, pixels):
-        why = f"the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the pixels"
+        why = _dense(aliased_share, pixels)
     else:
         why = "the fringes resolved by the pixels, straight rays, one band"
     if not optimiser.neighbour_loss:
         return f"no neighbour loss ({why})"
     return (f"the neighbour loss at weight {optimiser.neighbour_loss:g} over the first "
             f"{100 * optimiser.neighbour_share:.0f}% of the run ({why})")
+
+
+def _dense(aliased_share: float, pixels: int) -> str:
+    """Why fringes aliased in ``aliased_share`` of the pixels of images ``pixels`` across count as dense
+    (:func:`~.fields.dense_fringes`): the share as the rule reads it."""
+    why = f"the fringes alias in more than {100 * DENSE_FRINGES_SHARE:.0f}% of the pixels"
+    if pixels != DENSE_FRINGES_PIXELS:
+        scaled = share_at_reference(aliased_share, pixels)
+        why += f" at {DENSE_FRINGES_PIXELS} across (about {100 * scaled:.0f}%; {100 * aliased_share:.0f}% at {pixels})"
+    return why
