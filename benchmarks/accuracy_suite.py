@@ -52,6 +52,8 @@ class Case:
 
 DISK_100 = {"load": 100, "contact_width": 4}
 THREE_BANDS = "450,532,650"     # nm: the scenes' $bands, narrow filters
+CLOSE_BANDS = "500,532,565"     # their slowest beat a third as fast as THREE_BANDS'
+TWO_BANDS = "450,650"           # their beat twice as fast as THREE_BANDS'
 CASES = [
     Case("disk_100N", "disk_compression", DISK_100, target=0.05, note="the disk target"),
     Case("kitten", "kitten", {"fringe_value": 4500}, target=0.10, note="the kitten target"),
@@ -147,6 +149,13 @@ DIAGNOSTIC_CASES = [
       for name, scene, what, seeds in (("stacked_disks", "stacked_disks", "the stacked disks", (1, 2)),
                                        ("disk_300N", "disk_compression", "the 300 N disk", (1,)))
       for seed in seeds),
+    # The beat between the bands (the difference of two bands' orders) tells the orders apart where it is resolved:
+    # three bands closer together beat slower on the 600 N disk; two bands far apart beat faster on the 300 N disk
+    # (on 22 x 22 rotations, as many images as three bands on 18 x 18).
+    Case("disk_600N_3bands_close", "disk_compression", {"load": 600, "contact_width": 4, "bands": CLOSE_BANDS},
+         rotations=18, note="diagnostic: the 600 N disk in three narrow bands close together (a slower beat)"),
+    Case("disk_300N_2bands", "disk_compression", {"load": 300, "contact_width": 4, "bands": TWO_BANDS},
+         rotations=22, target=0.10, note="diagnostic: the 300 N disk in two narrow bands far apart (a faster beat)"),
 ]
 # Every other yardstick case once more with seed 1 on its own data: its run-to-run spread, which a change must beat.
 SEEDED = {"stacked_disks", "kitten_water"}      # their seed cases are above, with their own notes
@@ -234,6 +243,7 @@ def row_of(case: Case, rotations: int, res: int, minutes: float, simulated: floa
             "principal_difference_error": round(metrics.get("principal_difference_error", float("nan")), 4),
             "test_psnr": round(metrics.get("test_psnr", float("nan")), 2),
             "aliased_share": round(metrics.get("aliased_share", 0.0), 4),
+            "beat_aliased_share": round(metrics["beat_aliased_share"], 4) if "beat_aliased_share" in metrics else "",
             "neighbour_loss": record["config"]["optimiser"].get("neighbour_loss") or 0.0, "target": case.target,
             "met": "yes" if error < case.target else "no", "note": case.note, "cpu": cpu_name()}
 

@@ -16,7 +16,7 @@ import numpy as np
 from . import interrupts
 from .arguments import whole_number
 from .fields import StressField
-from .physics.aliasing import FringeAliasing
+from .physics.aliasing import FringeAliasing, beat_factor
 from .physics import MEASUREMENTS
 from .physics.bands import BandSet
 from .physics.colour import Spectrum
@@ -73,6 +73,7 @@ class RenderResult:
     metadata: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)  # what the integrator warned about, once each
     aliasing: FringeAliasing | None = None          # the aliasing guard's report on the last pass
+    beat: FringeAliasing | None = None              # a render of bands: the same on their slowest beat
 
     @property
     def main(self) -> np.ndarray:
@@ -208,7 +209,8 @@ def render_bands(scene: mi.Scene, bands: BandSet, spp: int | None = None, seed: 
     """``scene`` seen by a camera with ``bands`` (``physics.bands``: an RGB sensor under a white light, or narrow
     bands): each band's main channel and 16 measurements as ``<band>`` and ``<band>.<measurement>``, the weighted
     sums of its wavelengths' renders (:func:`render_wavelengths`). ``path.length``, ``fringe.order`` and the
-    aliasing report are the shortest wavelength's (the densest fringes); ``Y`` is the first band's."""
+    aliasing report are the shortest wavelength's (the densest fringes), ``beat`` that report on the slowest beat
+    between two bands (:func:`~mi_nest.physics.aliasing.beat_factor`); ``Y`` is the first band's."""
     renders = render_wavelengths(scene, bands.wavelengths, spp, seed, field, polariscope, load_scale,
                                  LaneChannels.MEASUREMENTS)
     images, first, last, said, seconds = _wavelength_images(renders, bands.wavelengths, progress, "bands")
@@ -218,7 +220,11 @@ def render_bands(scene: mi.Scene, bands: BandSet, spp: int | None = None, seed: 
         channels.update({band if n == "Y" else f"{band}.{n}": c.astype(np.float32) for n, c in zip(names, combined)})
     channels["Y"] = channels[bands.names[0]]
     metadata = {**last.metadata, "mi_nest.bands": bands.describe()}
-    return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said, aliasing=first.aliasing)
+    scales = [phase_scale(scene, load_scale, w) for w in bands.wavelengths]
+    factor = beat_factor(bands.weights @ scales, scales[0])
+    beat = None if factor is None or first.aliasing is None else first.aliasing.scaled(factor)
+    return RenderResult(channels=channels, seconds=seconds, metadata=metadata, warnings=said, aliasing=first.aliasing,
+                        beat=beat)
 
 
 def jones_at_wavelengths(scene: mi.Scene, wavelengths, spp: int | None = None,

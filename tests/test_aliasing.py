@@ -6,7 +6,8 @@ import mi_nest
 import numpy as np
 import pytest
 
-from mi_nest.physics.aliasing import NYQUIST, fringe_aliasing
+from mi_nest.physics.aliasing import (NYQUIST, UNRESOLVED_BANDS_SHARE, UNRESOLVED_BEAT_SHARE, UNRESOLVED_SHARE,
+                                      beat_factor, fringe_aliasing, phase_lost, unresolved_dataset)
 from scenes import BREWSTER, WAVELENGTH, box, medium, scene
 
 
@@ -39,6 +40,42 @@ def test_the_silhouette_is_not_a_fringe():
     assert report.pixels > 0 and report.densest == 0.0 and report.aliased == 0
     with pytest.raises(ValueError, match="one 2D shape"):
         fringe_aliasing(np.zeros((4, 4)), np.ones((4, 5), dtype=bool))
+
+
+def test_a_scaled_report_is_the_report_on_the_scaled_order():
+    inside = disk_mask(40)
+    columns = np.mgrid[:40, :40][1].astype(np.float64)
+    order = 0.1 * columns + 0.002 * columns ** 2       # 0.1 to 0.26 orders per pixel, growing across
+    for factor in (2.5, 3.0, 4.0):      # some of the pixels alias at each, not all
+        expected = fringe_aliasing(factor * order, inside)
+        scaled = fringe_aliasing(order, inside).scaled(factor)
+        assert (scaled.pixels, scaled.aliased) == (expected.pixels, expected.aliased)
+        assert 0 < expected.aliased < expected.pixels
+        assert scaled.densest == pytest.approx(expected.densest, rel=1e-5)      # the order is float32
+        assert scaled.densities == pytest.approx(expected.densities, rel=1e-5)
+
+
+def test_the_slowest_beat_is_the_closest_two_bands_difference():
+    # Constant C: a band's phase goes as 1 / lambda; the guard reads the shortest wavelength's order.
+    scales = [532.0 / w for w in (450.0, 532.0, 650.0)]
+    # 532 and 650 nm are the closest in 1 / lambda (0.1815 against 0.1822 for 450 and 532).
+    assert beat_factor(scales, scales[0]) == pytest.approx(450.0 * (1 / 532.0 - 1 / 650.0), rel=1e-12)
+    assert beat_factor(scales[::-1], scales[0]) == beat_factor(scales, scales[0])
+    assert beat_factor(scales[:1], scales[0]) is None
+
+
+def test_bands_lose_the_phase_by_their_beat_and_one_band_by_its_own_share():
+    assert phase_lost(UNRESOLVED_SHARE + 0.01) and not phase_lost(UNRESOLVED_SHARE - 0.01)
+    assert not phase_lost(UNRESOLVED_BANDS_SHARE - 0.01, UNRESOLVED_BEAT_SHARE - 0.001)
+    assert phase_lost(0.0, UNRESOLVED_BEAT_SHARE + 0.001) and phase_lost(UNRESOLVED_BANDS_SHARE + 0.01, 0.0)
+    one_band = {"views": 10, "of": 10, "mean_fraction": 0.19, "max_fraction": 0.5, "densest": 5.5}
+    assert "fringes are denser than the pixels in 19%" in unresolved_dataset(one_band, "DATA")
+    resolved_beat = {**one_band, "beat": {"views": 1, "of": 10, "mean_fraction": 0.004, "max_fraction": 0.06,
+                                          "densest": 0.85}}
+    assert unresolved_dataset(resolved_beat, "DATA") is None
+    aliased_beat = {**one_band, "beat": {**resolved_beat["beat"], "mean_fraction": UNRESOLVED_BEAT_SHARE + 0.01}}
+    problem = unresolved_dataset(aliased_beat, "DATA")
+    assert problem.startswith("DATA: even the slowest beat between its bands") and "\n" not in problem
 
 
 def test_fringe_order_channel_is_unwrapped_where_the_retardance_folds():

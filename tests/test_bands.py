@@ -2,6 +2,7 @@
 monochromatic renders, datasets of several bands through the colour polarisation mosaic, and the channel model a
 reconstruction fits them with."""
 import json
+import warnings
 
 import mitsuba as mi
 import numpy as np
@@ -11,6 +12,7 @@ import mi_nest
 from mi_nest.dataset import Dataset, SimulationSettings, simulate
 from mi_nest.dataset.camera import BAYER, MOSAIC, CameraModel, bayer_sites, mosaic_mask
 from mi_nest.physics import MEASUREMENTS, su2
+from mi_nest.physics.aliasing import UNRESOLVED_BEAT_SHARE, fringe_aliasing
 from mi_nest.physics.bands import BandError, BandSet, camera_bands, narrow_bands, parse_bands, read_bands
 from mi_nest.physics.colour import plane_polariscope_transmission, white_led
 from mi_nest.reconstruct.channels import ChannelModel
@@ -102,6 +104,61 @@ def test_narrow_bands_are_the_monochromatic_renders_at_their_wavelengths():
     assert set(result.channels) >= {"Y", "path.length", "fringe.order"}
 
 
+def test_a_band_render_reports_the_aliasing_of_its_slowest_beat():
+    """The beat's report is the aliasing guard on the difference of the two closest bands' orders, each rendered
+    alone: 532 and 650 nm (0.1815 / 532 nm apart in 1 / lambda against 0.1822 for 450 and 532)."""
+    loaded = mi_nest.load_scene("disk_compression", res=16, spp=1)       # 1 kN: most pixels alias in each band
+    result = render_bands(loaded, narrow_bands([450.0, 532.0, 650.0]))
+    orders = {w: render(loaded, view=View(phase_scale=phase_scale(loaded, 1.0, w))).channels["fringe.order"]
+              for w in (532.0, 650.0)}
+    expected = fringe_aliasing(orders[532.0] - orders[650.0], result.channels["path.length"] > 0)
+    assert result.aliasing.fraction > 0.5 and 0 < result.beat.aliased < result.aliasing.aliased
+    assert (result.beat.pixels, result.beat.aliased) == (expected.pixels, expected.aliased)
+    assert result.beat.densities == pytest.approx(expected.densities, rel=1e-4, abs=1e-6)
+    assert render(loaded).beat is None
+
+
+def test_a_result_from_bands_is_judged_by_their_beat():
+    from mi_nest.reconstruct import OptimizeConfig, Reconstruction
+
+    def said(**shares):
+        return Reconstruction(None, OptimizeConfig(), [], shares, 0.0).describe()
+    # The suite's 300 N disk in three narrow bands: each band aliases in 19% of the pixels, their beat in 0.7%.
+    assert said(aliased_share=0.19, beat_aliased_share=0.007) == (
+        "the fringes of each band are denser than the pixels in 19% of the specimen's pixels, their slowest beat "
+        f"in 0.7% (up to {100 * UNRESOLVED_BEAT_SHARE:.0f}%): the bands tell the fringe orders apart")
+    assert said(aliased_share=0.19, beat_aliased_share=UNRESOLVED_BEAT_SHARE + 0.01).startswith(
+        "UNRELIABLE: in the dataset even the slowest beat between its bands")
+    # The 600 N disk in bands close together: a beat resolved, each band aliased past what it can tell apart.
+    assert said(aliased_share=0.31, beat_aliased_share=0.0004).startswith(
+        "UNRELIABLE: in the dataset the fringes of each band are denser than the pixels in 31%")
+    assert said(aliased_share=0.19).startswith("UNRELIABLE: the dataset's fringes are denser than the pixels in 19%")
+    assert said(aliased_share=0.05, beat_aliased_share=0.0) == said(aliased_share=0.05) == ""
+
+
+def test_the_command_takes_bands_whose_beat_is_resolved_and_refuses_them_where_it_is_not(tmp_path, capsys):
+    """A 16-pixel disk in three narrow bands: at 70 N each band aliases in 19% of the pixels (one band is refused
+    over 10%) and their beat in none; at 300 N the beat aliases in 5.4%."""
+    from mi_nest.cli import main
+    settings = SimulationSettings(azimuths=3, elevations=2, res=16, spp=1, bands=narrow_bands([450.0, 532.0, 650.0]))
+    tiny = ["--iterations", "2", "--option", "batch_size=64", "--resolution", "6", "--no-progress"]
+    for load in (70, 300):
+        simulate("disk_compression", tmp_path / f"data{load}", settings, defines={"load": load, "contact_width": 4},
+                 progress=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["reconstruct", str(tmp_path / "data70"), "-o", str(tmp_path / "result70"), *tiny]) == 0
+    out = capsys.readouterr().out
+    assert "the fringes of each band are denser than the pixels in 19%" in out and "tell the fringe orders apart" in out
+    assert "UNRELIABLE" not in out and not [w for w in caught if "fringes are denser than the pixels" in str(w.message)]
+    record = json.loads((tmp_path / "result70" / "reconstruction.json").read_text())["metrics"]
+    assert record["aliased_share"] > 0.1 and record["beat_aliased_share"] == 0.0
+    assert main(["reconstruct", str(tmp_path / "data300"), "-o", str(tmp_path / "result300"), *tiny]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "even the slowest beat between its bands" in error and "--allow-aliased" in error
+    assert not (tmp_path / "result300").exists()
+
+
 def test_the_colour_mosaic_puts_each_pixel_under_one_polariser_and_one_filter():
     shape = (8, 12)
     cover = np.zeros(shape, dtype=int)
@@ -142,6 +199,8 @@ def test_a_dataset_of_three_bands_is_written_read_and_resumed(tmp_path):
     assert [s.intensity(su2.identity(0.0)) for s in dataset.polariscopes()[:16]] == \
         [s.intensity(su2.identity(0.0)) for s in MEASUREMENTS.values()]
     assert dataset.measurements(0).shape == (16, 16, 48)
+    aliasing = json.loads((tmp_path / "data" / "dataset.json").read_text())["fringe_aliasing"]
+    assert aliasing["beat"]["of"] == aliasing["of"] and aliasing["beat"]["densest"] < aliasing["densest"]
     again = simulate("disk_compression", tmp_path / "data", settings, defines=defines, progress=False)
     assert (again.rendered, again.kept) == (0, 4)
     index = json.loads((tmp_path / "data" / "dataset.json").read_text())

@@ -44,6 +44,7 @@ class SimulationSettings(RotationSchedule):
 
 # Rotation file header keys of the render's fringe-aliasing report (simulated datasets).
 ALIASED_KEY, DENSEST_KEY = "mi_nest.aliased_fraction", "mi_nest.densest_fringes"
+BEAT_ALIASED_KEY, BEAT_DENSEST_KEY = "mi_nest.beat_aliased_fraction", "mi_nest.beat_densest_fringes"
 
 
 @dataclass(frozen=True)
@@ -65,9 +66,9 @@ def render_rotation(scene: mi.Scene, entry: dict, settings: SimulationSettings):
             else render_bands(scene, settings.bands, spp=settings.spp))
 
 
-def write_rotation(path, rendered, entry, index, settings, aliasing=None):
+def write_rotation(path, rendered, entry, index, settings, aliasing=None, beat=None):
     """The rotation file of ``entry`` from its render's channels: the camera model (seeded by the rotation), the
-    masks, the header, one atomic EXR."""
+    masks, the header (with the render's ``aliasing`` report and, for bands, its ``beat``'s), one atomic EXR."""
     measured = settings.camera.capture({name: rendered[name] for name in index["channels"]}, entry["index"],
                                        settings.bands)
     channels = dict(measured)
@@ -77,4 +78,6 @@ def write_rotation(path, rendered, entry, index, settings, aliasing=None):
     metadata = fmt.rotation_header(entry, index)
     if aliasing is not None:
         metadata.update({ALIASED_KEY: f"{aliasing.fraction:.6g}", DENSEST_KEY: f"{aliasing.densest:.6g}"})
+    if beat is not None:
+        metadata.update({BEAT_ALIASED_KEY: f"{beat.fraction:.6g}", BEAT_DENSEST_KEY: f"{beat.densest:.6g}"})
     write_channels(path, channels, half=settings.half, metadata=metadata)

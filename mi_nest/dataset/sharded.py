@@ -61,7 +61,8 @@ def render_on_worker(job: RotationJob, entry: dict, drjit_threads: int | None) -
         start = time.perf_counter()
         result = render_rotation(_scene(job), entry, job.settings)
         rendered = time.perf_counter()
-        write_rotation(job.output / entry["file"], result.channels, entry, job.index, job.settings, result.aliasing)
+        write_rotation(job.output / entry["file"], result.channels, entry, job.index, job.settings, result.aliasing,
+                       result.beat)
     return RotationOutcome(True, rendered - start, time.perf_counter() - rendered,
                            tuple(str(w.message) for w in caught))
 

@@ -34,8 +34,8 @@ from ..scene import (SceneError, camera_of, load_scene, polariscope_camera, pola
 from ..version import __version__
 from . import format as fmt
 from .masks import agreement
-from .rotation_files import (ALIASED_KEY, DENSEST_KEY, RotationJob, SimulationSettings, render_rotation,
-                             write_rotation)
+from .rotation_files import (ALIASED_KEY, BEAT_ALIASED_KEY, BEAT_DENSEST_KEY, DENSEST_KEY, RotationJob,
+                             SimulationSettings, render_rotation, write_rotation)
 from .schedule import camera_to_world
 
 
@@ -114,11 +114,11 @@ class _RotationWriter:
         for thread in self._threads:
             thread.start()
 
-    def put(self, path, channels, entry, aliasing) -> None:
+    def put(self, path, channels, entry, aliasing, beat=None) -> None:
         while True:
             self._raise_error()
             try:
-                self._queue.put((path, channels, entry, aliasing), timeout=0.1)
+                self._queue.put((path, channels, entry, aliasing, beat), timeout=0.1)
                 return
             except queue.Full:
                 continue
@@ -147,10 +147,10 @@ class _RotationWriter:
                 return
             if self._error is not None:
                 continue        # drain: the run is ending with the error
-            path, channels, entry, aliasing = item
+            path, channels, entry, aliasing, beat = item
             start = time.perf_counter()
             try:
-                write_rotation(path, channels, entry, self.index, self.settings, aliasing)
+                write_rotation(path, channels, entry, self.index, self.settings, aliasing, beat)
             except BaseException as error:      # raised in the main thread, at its next put or at finish
                 self._error = error
                 continue
@@ -334,7 +334,7 @@ def _render_here(scene, output, index, settings, entries, on_disk):
             renders[entry["index"]] = time.perf_counter() - rendering
             if not number:      # the index before the first rotation file: a render refused writes nothing
                 fmt.write_index(output, index)
-            writer.put(output / entry["file"], result.channels, entry, result.aliasing)
+            writer.put(output / entry["file"], result.channels, entry, result.aliasing, result.beat)
             written()
     except BaseException:
         writer.finish(raise_error=False)    # what was rendered is written; the first error goes on
@@ -370,10 +370,18 @@ def _aliasing_summary(output, rotations):
     reports = [r for r in reports if ALIASED_KEY in r]
     if not reports:
         return None
-    fractions = [float(r[ALIASED_KEY]) for r in reports]
+    summary = _fractions_summary(reports, ALIASED_KEY, DENSEST_KEY)
+    beats = [r for r in reports if BEAT_ALIASED_KEY in r]
+    if len(beats) == len(reports):      # the slowest beat between the bands, where they are several
+        summary["beat"] = _fractions_summary(beats, BEAT_ALIASED_KEY, BEAT_DENSEST_KEY)
+    return summary
+
+
+def _fractions_summary(reports, fraction_key, densest_key):
+    fractions = [float(r[fraction_key]) for r in reports]
     return {"views": sum(f > ALIASED_FRACTION for f in fractions), "of": len(fractions),
             "mean_fraction": float(np.mean(fractions)), "max_fraction": max(fractions),
-            "densest": max(float(r[DENSEST_KEY]) for r in reports)}
+            "densest": max(float(r[densest_key]) for r in reports)}
 
 
 def json_round_trip(value: Any) -> Any:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..dataset import Dataset
 from ..io.atomic import atomic_path
-from ..physics.aliasing import UNRESOLVED_SHARE
+from ..physics.aliasing import UNRESOLVED_BEAT_SHARE, UNRESOLVED_SHARE, bands_lost_phase, phase_lost
 from ..render import RenderResult, render
 from ..tracer import Tracer
 from . import metrics
@@ -166,10 +166,7 @@ class Reconstruction:
                 floor_text = f" (the best any grid of this size can score: {100 * floor:.2f}%)"
             lines.append(f"relative deviatoric stress error {100 * self.metrics['deviatoric_error']:.2f}%{floor_text}, "
                          f"principal stress difference error {100 * self.metrics['principal_difference_error']:.2f}%")
-        if self.metrics.get("aliased_share", 0.0) > UNRESOLVED_SHARE:
-            lines.append(f"UNRELIABLE: the dataset's fringes are denser than the pixels in "
-                         f"{100 * self.metrics['aliased_share']:.0f}% of the specimen's pixels (over "
-                         f"{100 * UNRESOLVED_SHARE:.0f}% loses the phase): expect large errors")
+        lines.append(self._aliasing_line())
         trust = self.metrics.get("trust")
         if trust and trust.get("nodes"):
             lines.append(f"equilibrium imbalance (where to trust it; trust.npz): median "
@@ -179,6 +176,23 @@ class Reconstruction:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")
         return "\n".join(line for line in lines if line)
+
+    def _aliasing_line(self) -> str:
+        """What the data's fringe density says about this result: UNRELIABLE where the phase is lost; for bands
+        whose fringes alias each alone, that their beat tells the orders apart; else nothing."""
+        share, beat = self.metrics.get("aliased_share", 0.0), self.metrics.get("beat_aliased_share")
+        if beat is None:
+            if not phase_lost(share):
+                return ""
+            return (f"UNRELIABLE: the dataset's fringes are denser than the pixels in {100 * share:.0f}% of the "
+                    f"specimen's pixels (over {100 * UNRESOLVED_SHARE:.0f}% loses the phase): expect large errors")
+        if phase_lost(share, beat):
+            return f"UNRELIABLE: in the dataset {bands_lost_phase(share, beat)}: expect large errors"
+        if phase_lost(share):
+            return (f"the fringes of each band are denser than the pixels in {100 * share:.0f}% of the specimen's "
+                    f"pixels, their slowest beat in {100 * beat:.1f}% (up to {100 * UNRESOLVED_BEAT_SHARE:.0f}%): "
+                    "the bands tell the fringe orders apart")
+        return ""
 
     def save(self, directory: str | Path) -> Path:
         """Write ``field.npz`` and ``reconstruction.json`` into ``directory`` (atomically) and return it."""
