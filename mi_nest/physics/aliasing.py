@@ -59,6 +59,13 @@ def phase_lost(aliased_share: float, beat_share: float | None = None) -> bool:
     return aliased_share > UNRESOLVED_SHARE
 
 
+def summary_shares(summary: dict) -> tuple[float, float | None]:
+    """The aliased shares :func:`phase_lost` takes from a ``fringe_aliasing`` summary (``dataset.json``): each
+    band's, and the slowest beat's where there are several bands (else None)."""
+    beat = summary.get("beat")
+    return summary["mean_fraction"], beat["mean_fraction"] if beat else None
+
+
 def bands_lost_phase(aliased_share: float, beat_share: float) -> str:
     """Why data in several bands, aliased in ``aliased_share`` of the pixels each and ``beat_share`` in their
     slowest beat, have lost the phase (:func:`phase_lost`)."""
@@ -74,14 +81,13 @@ def bands_lost_phase(aliased_share: float, beat_share: float) -> str:
 def unresolved_dataset(summary: dict | None, where: str) -> str | None:
     """What is wrong with a dataset whose ``fringe_aliasing`` summary (``dataset.json``) says its fringes are too
     dense to reconstruct, and how to fix it (one line); None when they are resolved well enough."""
-    beat = (summary or {}).get("beat")
-    if not summary or not phase_lost(summary["mean_fraction"], beat["mean_fraction"] if beat else None):
+    if not summary or not phase_lost(*summary_shares(summary)):
         return None
-    if beat:
-        return (f"{where}: {bands_lost_phase(summary['mean_fraction'], beat['mean_fraction'])}; simulate or capture "
-                "it again with less load or more pixels (--res)" +
-                (", or in bands closer together, whose beat is slower"
-                 if beat["mean_fraction"] > UNRESOLVED_BEAT_SHARE else ""))
+    share, beat = summary_shares(summary)
+    if beat is not None:
+        return (f"{where}: {bands_lost_phase(share, beat)}; simulate or capture it again with less load or more "
+                "pixels (--res)" + (", or in bands closer together, whose beat is slower"
+                                    if beat > UNRESOLVED_BEAT_SHARE else ""))
     factor = max(2, math.ceil(summary["densest"] / NYQUIST))
     return (f"{where}: fringes are denser than the pixels in {100 * summary['mean_fraction']:.0f}% of the "
             f"specimen's pixels on average (more than {100 * UNRESOLVED_SHARE:.0f}% cannot be reconstructed: their "

@@ -21,7 +21,7 @@ from ..dataset import Dataset
 from ..dataset.truth import recorded_scene, truth_scene
 from ..fields.base import StressField
 from ..io.lock import locked_directory
-from ..physics.aliasing import NYQUIST, bands_lost_phase, phase_lost
+from ..physics.aliasing import NYQUIST, bands_lost_phase, phase_lost, summary_shares
 from ..scene import load_scene, scene_field, scene_file, specimen_bounds, specimen_media, specimen_shapes
 from . import metrics
 from .checkpoints import CHECKPOINT, Reconstruction
@@ -126,9 +126,9 @@ def optimize(scene: mi.Scene | str | Path, dataset: Dataset | str | Path, *, out
         result.metrics.update(evaluate(scene, dataset, result.field, truth, predictions, config.optimiser.mask,
                                        shapes))
         if aliasing:
-            result.metrics["aliased_share"] = aliased_share
-            if aliasing.get("beat"):
-                result.metrics["beat_aliased_share"] = aliasing["beat"]["mean_fraction"]
+            result.metrics["aliased_share"], beat_share = summary_shares(aliasing)
+            if beat_share is not None:
+                result.metrics["beat_aliased_share"] = beat_share
         trust = trust_map(scene, dataset, result.field, predictions, config.optimiser.mask, run.second_moment())
         result.metrics["trust"] = trust.summary()
         if output is not None:
@@ -170,15 +170,18 @@ def _warn_if_aliased(dataset):
     summary = dataset.index.get("fringe_aliasing")
     if not summary or not summary["views"]:
         return
-    beat = summary.get("beat")
-    if beat and not phase_lost(summary["mean_fraction"], beat["mean_fraction"]):
-        return      # the bands together tell the orders apart: the result says so (Reconstruction.describe)
-    # The accuracy suite's 300 N and stacked disks: 19.3% and 21.3% in one band, 5.4% and 8.9% in three narrow
-    # bands on as many images (docs/reconstruction.md, "The accuracy suite").
-    bands = ("; images in three narrow bands (mi-nest simulate --bands 450,532,650; filters on the rig) tell the "
-             "fringe orders apart, docs/reconstruction.md 'Several bands'") if dataset.bands is None else ""
-    if beat:
-        bands = f"; and {bands_lost_phase(summary['mean_fraction'], beat['mean_fraction'])}"
+    share, beat = summary_shares(summary)
+    if beat is not None:
+        if not phase_lost(share, beat):
+            return      # the bands together tell the orders apart: the result says so (Reconstruction.describe)
+        bands = f"; and {bands_lost_phase(share, beat)}"
+    elif dataset.bands is None:
+        # The accuracy suite's 300 N and stacked disks: 19.3% and 21.3% in one band, 5.4% and 8.9% in three narrow
+        # bands on as many images (docs/reconstruction.md, "The accuracy suite").
+        bands = ("; images in three narrow bands (mi-nest simulate --bands 450,532,650; filters on the rig) tell the "
+                 "fringe orders apart, docs/reconstruction.md 'Several bands'")
+    else:
+        bands = ""      # a single band named as a band set, or bands simulated before beats were recorded
     warnings.warn(
         f"{dataset.directory}: fringes are denser than the pixels (over {NYQUIST:g} order per pixel) in "
         f"{summary['views']} of {summary['of']} views, over {100 * summary['mean_fraction']:.2g}% of the "
