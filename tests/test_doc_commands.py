@@ -71,6 +71,9 @@ def tiny(line: str) -> list[str]:
         shrunk += ["--res", "16"] if command in ("simulate", "slice", "principal", "view") else ["-D", "res=16"]
     if command == "reconstruct":
         shrunk = [w for w in shrunk if w != "--fast"] + TINY_RECONSTRUCTION
+    if command == "simulate":
+        # The default is 32 x 32 rotations: a thousand renders, even at 16 px.
+        shrunk += [w for option in ("--azimuth", "--elevation") if option not in shrunk for w in (option, "2")]
     if command == "turntable" and "--frames" not in shrunk:
         shrunk += ["--frames", "2"]
     if command == "export" and "--resolution" not in shrunk:
