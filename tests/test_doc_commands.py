@@ -3,10 +3,10 @@
 The commands are read from the documents' ``bash`` blocks and run in order, one document's in one fresh
 directory (a recipe's later commands read what its earlier ones wrote), through ``mi_nest.cli.main``. Only the
 sizes shrink: resolutions, rotations (written or the default's), frames, iterations (``SHRINK``); every file,
-scene and option is the document's. Paths into the checkout (``scenes/...``) resolve against it. A reconstruction that a recipe takes
-from the demo (``mi_nest_out/reconstruction``) is made first by a tiny simulation and reconstruction of the
-demo's scene. The one command that serves until Ctrl-C, ``mi-nest view``, is checked for its arguments only:
-tests/test_viewer.py serves it.
+scene and option is the document's. Paths into the checkout (``scenes/...``) resolve against it. A
+reconstruction that a recipe takes from the demo (``mi_nest_out/reconstruction``) is made first by a tiny
+simulation and reconstruction of the demo's scene. The one command that serves until Ctrl-C, ``mi-nest
+view``, is checked for its arguments only: tests/test_viewer.py serves it.
 """
 from __future__ import annotations
 

@@ -81,15 +81,17 @@ def bands_lost_phase(aliased_share: float, beat_share: float) -> str:
 def unresolved_dataset(summary: dict | None, where: str) -> str | None:
     """What is wrong with a dataset whose ``fringe_aliasing`` summary (``dataset.json``) says its fringes are too
     dense to reconstruct, and how to fix it (one line); None when they are resolved well enough."""
-    if not summary or not phase_lost(*summary_shares(summary)):
+    if not summary:
         return None
     share, beat = summary_shares(summary)
+    if not phase_lost(share, beat):
+        return None
     if beat is not None:
         return (f"{where}: {bands_lost_phase(share, beat)}; simulate or capture it again with less load or more "
                 "pixels (--res)" + (", or in bands closer together, whose beat is slower"
                                     if beat > UNRESOLVED_BEAT_SHARE else ""))
     factor = max(2, math.ceil(summary["densest"] / NYQUIST))
-    return (f"{where}: fringes are denser than the pixels in {100 * summary['mean_fraction']:.0f}% of the "
+    return (f"{where}: fringes are denser than the pixels in {100 * share:.0f}% of the "
             f"specimen's pixels on average (more than {100 * UNRESOLVED_SHARE:.0f}% cannot be reconstructed: their "
             f"phase is lost), up to {summary['densest']:.3g} orders per pixel; simulate or capture it again with "
             f"less load (e.g. -D load=... about 1/{factor} of it) or more pixels (--res about {factor}x), or "
