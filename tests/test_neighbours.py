@@ -63,7 +63,7 @@ def test_a_pixel_that_averages_two_jones_matrices_keeps_less_light_polarised():
     one = np.array([scope.intensity(tuple(q[0])) for scope in scopes])
     other = np.array([scope.intensity(tuple(q[1])) for scope in scopes])
     recovered, polarisation = jones_and_polarisation(np.stack([one, (one + other) / 2]), scopes)
-    assert abs(abs(recovered[0] @ q[0]) - 1) < 1e-9 and polarisation[0] == pytest.approx(1.0, abs=1e-7)
+    assert abs(abs(recovered[0] @ q[0]) - 1) < 1e-9 and polarisation[0] == pytest.approx(1.0, abs=1e-12)
     # Two Jones matrices averaged: the pixel's light is partly depolarised, by as much as they differ.
     assert polarisation[1] < 1 - 0.1 * (1 - abs(q[0] @ q[1]))
 

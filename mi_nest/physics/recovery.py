@@ -133,5 +133,8 @@ def jones_and_polarisation(values: np.ndarray,
     second = u * g12[..., None] + v * g22[..., None]
     third = np.cross(first, second)
     rotation = (first[..., :, None] * a + second[..., :, None] * b + third[..., :, None] * np.cross(a, b))
-    smaller = trace / 2 - np.sqrt(np.maximum(trace * trace / 4 - determinant, 0.0))
+    # tr^2 / 4 - det as a sum of squares: the difference cancels to rounding where G is isotropic (one Jones
+    # matrix), and the root of that rounding would be ~1e-8 off.
+    spread = np.sqrt(((uu - vv) / 2) ** 2 + uv * uv)
+    smaller = trace / 2 - spread
     return quaternion_from_rotation(rotation), np.sqrt(np.maximum(smaller, 0.0))
