@@ -36,7 +36,7 @@ from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
 
 HERE = Path(__file__).resolve().parents[1]
-TERMS = ("imbalance", "curvature_spread", "heldout_residual", "coverage", "direction_spread")
+TERMS = ("uncertainty", "imbalance", "curvature_spread", "heldout_residual", "coverage", "direction_spread")
 BULK = 0.8      # the share of the nodes, lowest imbalance first, whose ranking is reported on its own
 
 

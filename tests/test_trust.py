@@ -77,7 +77,7 @@ def test_the_trust_map_at_a_point_is_its_nearest_measured_node():
     points = np.array([[1.0, 1.0, 0.0], [2.2, 0.9, 1.0], [0.0, 0.0, 0.0], [3.0, 2.0, 1.0]])
     np.testing.assert_array_equal(trust.at(points), [5.0, 7.0, 5.0, 7.0])
     exported = trust.point_data(points)
-    assert list(exported) == ["trust_uncertainty", "trust_coverage", "trust_direction_spread",
+    assert list(exported) == ["trust_uncertainty", "trust_imbalance", "trust_coverage", "trust_direction_spread",
                               "trust_heldout_residual"]
     blank = TrustMap(np.zeros(3), np.ones(3), *(np.full((2, 2, 2), np.nan),) * 4, [], [])
     assert np.isnan(blank.at(points)).all()
@@ -149,3 +149,20 @@ def test_dense_fringes_choose_the_finest_grid_and_say_why(one_axis_and_two_axes)
     # fringes alias in 7% and 8% of those pixels (docs/reconstruction.md, "The neighbour loss").
     assert "; no neighbour loss (the fringes alias in more than 10% of the pixels at 64 across (about 16%; 8% at " \
            "128)); " in finer[1]
+
+
+def test_a_node_on_the_surface_counts_the_share_of_its_cells_inside_and_is_trusted_less(tmp_path):
+    from mi_nest.reconstruct.equilibrium import CellStencil
+    from mi_nest.reconstruct.trust import inside_share
+    occupied = np.zeros((4, 5, 6), bool)         # cells (z, y, x) of a 7 x 6 x 5 node grid
+    occupied[1:3, 1:4, 1:5] = True               # a block of 2 x 3 x 4 cells
+    share = inside_share(CellStencil.of((7, 6, 5), np.ones(3), occupied))
+    # Deep inside all eight cells, on a face four, on an edge two, at a corner one, off the block none.
+    assert share[2, 2, 2] == 1.0 and share[2, 2, 1] == 0.5 and share[1, 1, 3] == 0.25 and share[1, 1, 1] == 0.125
+    assert share[0].max() == 0.0 and share.sum() == pytest.approx(occupied.sum())
+    values = np.full(share.shape, 2.0)
+    trust = TrustMap(np.zeros(3), np.ones(3), values, values, values, values, [], [], None, share)
+    assert trust.uncertainty[2, 2, 2] == 2.0 and trust.uncertainty[1, 1, 1] == 16.0
+    assert np.isnan(trust.uncertainty[0]).all()
+    trust.save(tmp_path / TRUST_FILE)
+    np.testing.assert_array_equal(TrustMap.load(tmp_path / TRUST_FILE).uncertainty, trust.uncertainty)

@@ -1,16 +1,18 @@
 """Where to trust a reconstruction, node by node: how far the field is from balancing itself, how the data
 observe each node, and how well the field explains the views it was not fitted to.
 
-Four things are measured on a lattice over the specimen (a grid's own nodes):
+These are measured on a lattice over the specimen (a grid's own nodes):
 
 - ``imbalance``: the equilibrium residual ``|div(s) + grad(p)|`` the reconstructed deviator ``s`` leaves with
   the mean stress ``p`` that balances it best (:mod:`~mi_nest.reconstruct.equilibrium`), the largest of the
   cells around the node, averaged over its 3 x 3 x 3 neighbourhood (stress scales per box length). A true field
-  leaves only its discretisation; a wrong one does not balance. This is the ``uncertainty``: on the accuracy
-  suite's twelve grid cases it ranks the actual error with Spearman correlations of 0.51 to 0.91, on 33 more
-  results 0.42 to 0.90, below 0.5 on three with low error that is mostly the seed's (two runs' errors rank each
-  other at 0.45 to 0.63 there; ``benchmarks/trust_ranking.py``, docs/reconstruction.md);
-
+  leaves only its discretisation; a wrong one does not balance;
+- ``inside_share``: the share of the node's eight cells inside the specimen (1 deep inside, less on the surface);
+- ``uncertainty``, the imbalance over the inside share: a node on the surface is held by the balance of fewer
+  cells, and the free surface's traction is not asked of it, so the same imbalance leaves it freer to be wrong.
+  On the accuracy suite it ranks the actual error with Spearman correlations of 0.74 to 0.80 on the kitten and
+  the bracket and 0.41 to 0.55 on the disks, a few hundredths above the imbalance alone on six of seven
+  results (``benchmarks/trust_ranking.py``, docs/reconstruction.md "Where to trust it");
 - ``coverage``: the share of the training views whose specimen pixels have a ray through the node;
 - ``direction_spread``: ``3 lambda_min`` of the mean ``d d^T`` over those rays (1: directions from all around,
   0: all in one plane, where the tomography cannot tell some components apart);
@@ -21,8 +23,8 @@ Four things are measured on a lattice over the specimen (a grid's own nodes):
 Rays are the cameras' straight lines, sampled along the box at a fraction of the node spacing and splatted to
 the nearest node; refraction bends them in the data, not here (a measure of observation, not a render).
 The uncertainty is relative (a ranking of the nodes by how far to trust them), not an error bar in MPa; the
-other terms ranked the error far worse (the curvature spread -0.16 to 0.49, the observation terms and the held-out
-residual -0.18 to 0.74 but mostly below 0.4) and are reported beside it.
+other terms ranked the error far worse (the curvature spread -0.30 to 0.49, the observation terms and the
+held-out residual -0.18 to 0.74 but mostly below 0.4) and are reported beside it.
 """
 from __future__ import annotations
 
@@ -54,7 +56,8 @@ LATTICE = 48
 SAMPLES_PER_SPACING = 2
 TRUST_FILE = "trust.npz"
 # What a trust map holds per node, the uncertainty first.
-TERMS = ("uncertainty", "coverage", "direction_spread", "heldout_residual", "curvature_spread")
+TERMS = ("uncertainty", "imbalance", "inside_share", "coverage", "direction_spread", "heldout_residual",
+         "curvature_spread")
 
 
 @dataclass
@@ -72,6 +75,8 @@ class TrustMap:
     # Grids: 1 / sqrt of the mean squared loss gradient per node, relative to its median (None for networks, and
     # in maps written before it): a spread estimate from the loss's curvature.
     curvature_spread: np.ndarray | None = None
+    # The share of each node's eight cells inside the specimen (None in maps written before it).
+    inside_share: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -80,8 +85,12 @@ class TrustMap:
 
     @property
     def uncertainty(self) -> np.ndarray:
-        """How far to trust each node, higher less: its :attr:`imbalance`."""
-        return self.imbalance
+        """How far to trust each node, higher less: its :attr:`imbalance` over its :attr:`inside_share`. A node
+        on the surface is held by the balance of fewer cells, and the free surface's traction is not asked of
+        it, so the same imbalance there leaves the field freer to be wrong."""
+        if self.inside_share is None:
+            return self.imbalance
+        return self.imbalance / np.where(self.inside_share > 0, self.inside_share, np.nan)
 
     def nodes(self) -> np.ndarray:
         """Node positions (nz * ny * nx, 3), x fastest."""
@@ -128,15 +137,16 @@ class TrustMap:
                                 direction_spread=self.direction_spread, heldout_residual=self.heldout_residual,
                                 imbalance=self.imbalance,
                                 view_residuals=np.asarray(self.view_residuals), views=np.asarray(self.views),
-                                **({} if self.curvature_spread is None else
-                                   {"curvature_spread": self.curvature_spread}))
+                                **{name: getattr(self, name) for name in ("curvature_spread", "inside_share")
+                                   if getattr(self, name) is not None})
 
     @classmethod
     def load(cls, path: str | Path) -> TrustMap:
         with np.load(path) as data:
             return cls(data["bbox_min"], data["bbox_max"], data["coverage"], data["direction_spread"],
                        data["heldout_residual"], data["imbalance"], data["view_residuals"].tolist(),
-                       data["views"].tolist(), data["curvature_spread"] if "curvature_spread" in data else None)
+                       data["views"].tolist(), *(data[name] if name in data else None
+                                                 for name in ("curvature_spread", "inside_share")))
 
 
 def _quantile(values, q):
@@ -187,12 +197,24 @@ def trust_map(scene: mi.Scene, dataset: Dataset, field: TrainableField, predicti
     spread = 3.0 * np.clip(np.linalg.eigvalsh(tensor)[:, 0], 0.0, None)
     residual = np.where(weight_sum > 0, residual_sum / np.maximum(weight_sum, 1e-30), np.nan)
     coverage = np.where(reached, seen_by / max(len(chosen), 1), 0.0)
-    balance = imbalance(scene, field, shape)
+    solver = equilibrium.MeanStressSolver(equilibrium.specimen_stencil(scene, shape, low, high))
+    balance = imbalance(scene, field, shape, solver)
     curvature = None
     if second_moment is not None and np.size(second_moment) == 5 * balance.size:
         curvature = curvature_spread(np.reshape(second_moment, (*balance.shape, 5)), np.isfinite(balance))
     return TrustMap(low, high, coverage.reshape(nz, ny, nx), np.where(reached, spread, 0.0).reshape(nz, ny, nx),
-                    residual.reshape(nz, ny, nx), balance, view_residuals, views, curvature)
+                    residual.reshape(nz, ny, nx), balance, view_residuals, views, curvature,
+                    inside_share(solver.stencil))
+
+
+def inside_share(stencil: equilibrium.CellStencil) -> np.ndarray:
+    """The share of each node's up to eight cells that ``stencil`` holds (lie inside the specimen), (nz, ny, nx):
+    1 deep inside, 1/8 at a convex corner, 0 outside."""
+    nx, ny, nz = stencil.shape
+    cells = np.zeros((nz - 1) * (ny - 1) * (nx - 1))
+    cells[stencil.cells] = 1.0
+    padded = np.pad(cells.reshape(nz - 1, ny - 1, nx - 1), 1)
+    return sum(padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)) / 8.0
 
 
 def curvature_spread(second_moment: np.ndarray, inside: np.ndarray) -> np.ndarray:
