@@ -213,10 +213,12 @@ def test_the_defaults_settle_on_a_specimen():
     with pytest.raises(ValueError, match=r"resolution must be at least 2 nodes \(or 0: a network evaluated at every "
                                          r"step\), got 1"):
         OptimizeConfig(kind="mlp", resolution=1)
-    # The MLP's own steps (the grids' ran it away); a learning rate given is kept, and a saved run reloads as run.
-    from mi_nest.reconstruct.config import MLP_OPTIMISER, Optimiser
+    # The MLP's own steps, smaller at every step (the grids' ran it away there); a learning rate given is kept, and a
+    # saved run reloads as run.
+    from mi_nest.reconstruct.config import MLP_EVERY_STEP_OPTIMISER, MLP_OPTIMISER, Optimiser
     assert OptimizeConfig(kind="mlp").optimiser == MLP_OPTIMISER
-    assert MLP_OPTIMISER.learning_rate < Optimiser().learning_rate / 10
+    assert OptimizeConfig(kind="mlp", resolution=0).optimiser == MLP_EVERY_STEP_OPTIMISER
+    assert MLP_EVERY_STEP_OPTIMISER.learning_rate < MLP_OPTIMISER.learning_rate < Optimiser().learning_rate
     assert OptimizeConfig(kind="mlp", learning_rate=0.01).optimiser.learning_rate == 0.01
     assert OptimizeConfig(kind="grid").optimiser == OptimizeConfig(kind="hashgrid").optimiser == Optimiser()
     mlp = OptimizeConfig(kind="mlp", seed=2)

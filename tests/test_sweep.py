@@ -193,7 +193,7 @@ scene = "stacked_disks"
 
 
 @pytest.mark.parametrize("name, cases", [("accuracy_suite", 17), ("rotation_range", 3), ("stress_optic", 3),
-                                         ("forward_models", 3), ("network_learning_rate", 7),
+                                         ("forward_models", 3), ("network_learning_rate", 7), ("mlp_learning_rate", 12),
                                          ("relative_smoothness", 4)])
 def test_the_shipped_sweep_files_read(name, cases):
     from pathlib import Path

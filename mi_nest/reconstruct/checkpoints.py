@@ -169,9 +169,9 @@ class Reconstruction:
         lines.append(self._aliasing_line())
         trust = self.metrics.get("trust")
         if trust and trust.get("nodes"):
-            lines.append(f"equilibrium imbalance (where to trust it; trust.npz): median "
-                         f"{trust['uncertainty_median']:.3g}, 95th percentile {trust['uncertainty_p95']:.3g} stress "
-                         "scales per box length")
+            lines.append(f"uncertainty (where to trust it; trust.npz: the equilibrium imbalance over the share of "
+                         f"each node's cells inside the part): median {trust['uncertainty_median']:.3g}, 95th "
+                         f"percentile {trust['uncertainty_p95']:.3g} stress scales per box length")
         if "test_psnr" in self.metrics:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")
