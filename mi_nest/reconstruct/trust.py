@@ -211,10 +211,17 @@ def inside_share(stencil: equilibrium.CellStencil) -> np.ndarray:
     """The share of each node's up to eight cells that ``stencil`` holds (lie inside the specimen), (nz, ny, nx):
     1 deep inside, 1/8 at a convex corner, 0 outside."""
     nx, ny, nz = stencil.shape
-    cells = np.zeros((nz - 1) * (ny - 1) * (nx - 1))
-    cells[stencil.cells] = 1.0
-    padded = np.pad(cells.reshape(nz - 1, ny - 1, nx - 1), 1)
-    return sum(padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)) / 8.0
+    cells = np.zeros((nz - 1, ny - 1, nx - 1))
+    np.put(cells, stencil.cells, 1.0)
+    return _node_cells(cells, 0.0).mean(axis=0)
+
+
+def _node_cells(cells: np.ndarray, outside: float) -> np.ndarray:
+    """Each node's up to eight cells' values (8, nz, ny, nx) from per-cell ``cells`` (nz - 1, ny - 1, nx - 1);
+    ``outside`` where a node's cell lies beyond the lattice."""
+    nz, ny, nx = (n + 1 for n in cells.shape)
+    padded = np.pad(cells, 1, constant_values=outside)
+    return np.stack([padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
 
 
 def curvature_spread(second_moment: np.ndarray, inside: np.ndarray) -> np.ndarray:
@@ -245,8 +252,7 @@ def imbalance(scene: mi.Scene, field: TrainableField, shape: tuple[int, int, int
     cells = np.full((nz - 1, ny - 1, nx - 1), np.nan)
     np.put(cells, solver.stencil.cells, np.sqrt(solver.cell_residuals(deviator)))
     # Each node takes the largest of its up to eight cells (an unbalanced cell taints all its corners).
-    padded = np.pad(cells, 1, constant_values=np.nan)
-    corners = np.stack([padded[a:a + nz, b:b + ny, c:c + nx] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    corners = _node_cells(cells, np.nan)
     touched = np.isfinite(corners).any(axis=0)
     largest = np.where(touched, np.nanmax(np.where(np.isfinite(corners), corners, -np.inf), axis=0), 0.0)
     # The neighbourhood's mean over the touched nodes only.
