@@ -6,7 +6,9 @@ the field the dataset was simulated from at the map's nodes inside the specimen,
 correlation of each trust term and of the uncertainty with the error, with the CPU and the seconds the map took.
 Where the same case's result with the other seed lies beside it (the suite's ``CASE`` and ``CASE_seed1``), also
 the rank correlation of the two runs' actual error maps (``rho_twin_error``): how much of the error repeats
-from run to run, a yardstick for the trust terms where the error is mostly the seed's. ``rho_imbalance_bulk``: the
+from run to run, a yardstick for the trust terms where the error is mostly the seed's; that of the seed spread
+the twin gives (``rho_seed_spread``, ``mi_nest.reconstruct.trust.seed_spread``) with this run's error; and that
+of the uncertainty counting it, as ``mi-nest spread`` writes it (``rho_uncertainty_with_spread``). ``rho_imbalance_bulk``: the
 imbalance's rank correlation over the 80% of the nodes where it is lowest.
 Each result's ``trust.npz`` is written again with the map computed here (its curvature spread from the Adam
 moments of its ``checkpoint.npz``; results made before runs wrote their trust map get one).
@@ -31,7 +33,7 @@ from mi_nest.dataset import Dataset
 from mi_nest.dataset.truth import recorded_truth
 from mi_nest.reconstruct import Reconstruction
 from mi_nest.reconstruct.evaluation import heldout_predictions
-from mi_nest.reconstruct.trust import TRUST_FILE, error_map, trust_map
+from mi_nest.reconstruct.trust import TRUST_FILE, error_map, seed_spread, trust_map
 from mi_nest.scene import specimen_shapes
 from reconstruction import cpu_name
 
@@ -73,8 +75,16 @@ def rank(directory: Path) -> dict:
     bulk = np.isfinite(imbalance) & (imbalance < np.nanquantile(imbalance, BULK))
     row["rho_imbalance_bulk"] = round(float(spearmanr(imbalance[bulk], error[bulk]).statistic), 3)
     twin = seed_twin(directory, result)
-    row["rho_twin_error"] = float("nan") if twin is None else \
-        round(float(spearmanr(error_map(twin.field, truth, nodes[inside]), error).statistic), 3)
+    row["rho_twin_error"] = row["rho_seed_spread"] = row["rho_uncertainty_with_spread"] = float("nan")
+    if twin is not None:
+        row["rho_twin_error"] = round(float(spearmanr(error_map(twin.field, truth, nodes[inside]), error).statistic), 3)
+        spread = np.full(len(nodes), np.nan)
+        spread[inside] = seed_spread(result.field, [twin.field], nodes[inside])
+        row["rho_seed_spread"] = round(float(spearmanr(spread[inside], error).statistic), 3)
+        trust.seed_spread = spread.reshape(trust.imbalance.shape)
+        uncertainty = trust.uncertainty.ravel()[inside]
+        both = np.isfinite(uncertainty)
+        row["rho_uncertainty_with_spread"] = round(float(spearmanr(uncertainty[both], error[both]).statistic), 3)
     row["cpu"] = cpu_name()
     return row
 

@@ -268,6 +268,11 @@ def _parser():
     separate.add_argument("-D", dest="defines", action="append", type=parse_define, default=[],
                           metavar="NAME=VALUE", help="fill the scene's $NAME default (repeatable)")
 
+    spread = commands.add_parser("spread", help="the seed spread of two or more reconstructions of one dataset "
+                                                "(runs with other --option seed=N): each one's trust map gains it "
+                                                "and its uncertainty counts it")
+    spread.add_argument("results", nargs="+", help="reconstruction directories (mi-nest reconstruct -o) of one dataset")
+
     view = commands.add_parser("view", help="an interactive viewer in the browser: drag to turn the part; the "
                                             "slice, polariscope, load and wavelength on sliders (Ctrl-C stops it)")
     view.add_argument("source", help="scene XML file or shipped name, or a reconstruction directory")
@@ -755,6 +760,20 @@ def _separate(args):
         print(f"wrote {path.resolve()}")
 
 
+def _spread(args):
+    from .reconstruct.spread import write_seed_spread
+    for written in write_seed_spread(args.results):
+        summary = written.summary
+        ranking = "" if written.ranking is None else \
+            (f"; it ranks the actual deviatoric error at Spearman {written.ranking[0]:.2f} ({written.ranking[1]:.2f} "
+             "without the spread)")
+        print(f"{written.directory}: seed spread over {len(summary['seed_spread_from'])} other run(s): median "
+              f"{summary['seed_spread_median']:.3g} MPa, 95th percentile {summary['seed_spread_p95']:.3g} MPa; "
+              f"uncertainty median {summary['uncertainty_median']:.3g}, 95th percentile "
+              f"{summary['uncertainty_p95']:.3g} stress scales per box length{ranking}")
+        print(f"wrote {(written.directory / 'trust.npz').resolve()} and reconstruction.json")
+
+
 # The largest patches of free surface left carrying traction that a separation prints (the rest: separation.json).
 SUSPECTS_SHOWN = 3
 
@@ -782,7 +801,7 @@ COMMANDS = {"render": _render, "demo": _demo, "export": _export, "fem": _fem, "b
             "simulate": _simulate, "sweep": _sweep, "show": _show, "reconstruct": _reconstruct, "acquire": _acquire,
             "calibrate": _calibrate, "scenes": _scenes, "slice": _slice,
             "turntable": _turntable, "compare": _compare, "principal": _principal,
-            "separate": _separate, "view": _view}
+            "separate": _separate, "spread": _spread, "view": _view}
 # The options naming a file that a command writes, with the suffix of an example name: one naming a directory is
 # refused before any work (a file cannot replace it).
 FILE_OUTPUTS = {"render": (("-o", "output", ".exr"), ("--png", "png", ".png")),

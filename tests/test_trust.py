@@ -6,9 +6,11 @@ import pytest
 
 import mi_nest
 from mi_nest.dataset import Dataset, SimulationSettings, simulate
-from mi_nest.reconstruct import optimize
+from mi_nest.reconstruct import Reconstruction, optimize
 from mi_nest.reconstruct.evaluation import heldout_predictions
 from mi_nest.reconstruct.trust import TRUST_FILE, TrustMap, imbalance, trust_map
+from mi_nest.fields.base import sample
+from mi_nest.physics.tensors import deviatoric_part, tensor_norm
 from scenes import disk_deviator_grid
 
 
@@ -166,3 +168,69 @@ def test_a_node_on_the_surface_counts_the_share_of_its_cells_inside_and_is_trust
     assert np.isnan(trust.uncertainty[0]).all()
     trust.save(tmp_path / TRUST_FILE)
     np.testing.assert_array_equal(TrustMap.load(tmp_path / TRUST_FILE).uncertainty, trust.uncertainty)
+
+
+def test_the_seed_spread_is_the_root_mean_square_difference_over_root_two_and_scales_the_uncertainty():
+    from mi_nest.reconstruct.trust import seed_spread
+    step = np.zeros(6)
+    step[[0, 1, 3]] = (1.0, -1.0, 0.5)          # a deviator (xx, yy, zz, xy, yz, zx): |step| = sqrt(2.5) MPa
+    grids = [disk_deviator_grid(lambda truth, nodes, k=k: truth + k * step)[0] for k in (0, 1, 2)]
+    nodes = disk_deviator_grid()[1][::97]
+    size = np.sqrt(2.5)
+    # The middle run is one step from each other, the first one and two: sqrt((1 + 4) / 2 / 2) steps.
+    np.testing.assert_allclose(seed_spread(grids[1], [grids[0], grids[2]], nodes), size / np.sqrt(2), rtol=1e-4)
+    np.testing.assert_allclose(seed_spread(grids[0], [grids[1], grids[2]], nodes), size * np.sqrt(5) / 2,
+                               rtol=1e-4)
+    values = np.full((2, 2, 2), 3.0)
+    spread = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 4.0, 4.0]).reshape(2, 2, 2)
+    trust = TrustMap(np.zeros(3), np.ones(3), values, values, values, values, [], [], None, np.ones((2, 2, 2)),
+                     spread)
+    # Times one plus the spread over its median (1.0): where the runs disagree four times as much, 2.5 times as
+    # uncertain as where they disagree as much as usual.
+    np.testing.assert_array_equal(trust.uncertainty, 3.0 * (1.0 + spread))
+
+
+def test_mi_nest_spread_gives_each_run_the_others_spread_and_refuses_what_it_cannot_compare(
+        one_axis_and_two_axes, tmp_path, capsys):
+    import shutil
+
+    from mi_nest.cli import main
+    scene = mi_nest.load_scene("disk_compression", res=16, load=20)
+    runs = {}
+    for name, data, seed in (("a", "two", 0), ("b", "two", 1), ("other_data", "one", 1)):
+        optimize(scene, one_axis_and_two_axes[data], output=tmp_path / name, progress=False, iterations=3,
+                 batch_size=64, resolution=8, evaluate_views=1, seed=seed)
+        runs[name] = tmp_path / name
+    shutil.copytree(runs["a"], tmp_path / "copy_of_a")
+    shutil.copytree(runs["b"], tmp_path / "without_trust")
+    (tmp_path / "without_trust" / TRUST_FILE).unlink()
+    before = (runs["a"] / TRUST_FILE).read_bytes()
+    refusals = {"one run": [runs["a"]], "given twice": [runs["a"], runs["a"]],
+                "another dataset": [runs["a"], runs["other_data"]], "a copy": [runs["a"], tmp_path / "copy_of_a"],
+                "no result": [runs["a"], tmp_path / "nothing"], "no trust map": [runs["a"], tmp_path / "without_trust"]}
+    expected = {"one run": "compares two or more reconstructions of one dataset, got 1",
+                "given twice": "is given twice", "another dataset": "a seed spread compares runs of one dataset",
+                "a copy": "holds the same field as the other runs", "no result": "is not a reconstruction",
+                "no trust map": "has no trust map (trust.npz): run the mi-nest reconstruct command"}
+    for case, directories in refusals.items():
+        assert main(["spread", *map(str, directories)]) == 2, case
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and expected[case] in error, (case, error)
+        assert (runs["a"] / TRUST_FILE).read_bytes() == before, case
+    assert main(["spread", str(runs["a"]), str(runs["b"])]) == 0
+    printed = capsys.readouterr().out
+    assert "seed spread over 1 other run(s)" in printed and "it ranks the actual deviatoric error at Spearman" in printed
+    trusts = [TrustMap.load(runs[name] / TRUST_FILE) for name in "ab"]
+    fields = [Reconstruction.load(runs[name]).field for name in "ab"]
+    measured = np.isfinite(trusts[0].imbalance)
+    nodes = trusts[0].nodes()[measured.ravel()]
+    difference = tensor_norm(deviatoric_part(sample(fields[0], nodes)) - deviatoric_part(sample(fields[1], nodes)))
+    np.testing.assert_allclose(trusts[0].seed_spread[measured], difference / np.sqrt(2), rtol=1e-5)
+    np.testing.assert_allclose(trusts[1].seed_spread[measured], trusts[0].seed_spread[measured], rtol=1e-5)
+    plain = trusts[0].imbalance / trusts[0].inside_share
+    np.testing.assert_allclose(trusts[0].uncertainty[measured], (plain * (1 + trusts[0].seed_spread / np.median(
+        trusts[0].seed_spread[measured])))[measured])
+    summary = json.loads((runs["a"] / "reconstruction.json").read_text())["metrics"]["trust"]
+    assert summary["seed_spread_from"] == [str(runs["b"].resolve())]
+    assert summary["seed_spread_median"] == pytest.approx(float(np.median(trusts[0].seed_spread[measured])))
+    assert "times one plus its seed spread over the median" in Reconstruction.load(runs["a"]).describe()

@@ -169,9 +169,12 @@ class Reconstruction:
         lines.append(self._aliasing_line())
         trust = self.metrics.get("trust")
         if trust and trust.get("nodes"):
+            spread = "" if "seed_spread_median" not in trust else \
+                (f", times one plus its seed spread over the median {trust['seed_spread_median']:.3g} MPa "
+                 f"({len(trust['seed_spread_from'])} other run(s))")
             lines.append(f"uncertainty (where to trust it; trust.npz: the equilibrium imbalance over the share of "
-                         f"each node's cells inside the part): median {trust['uncertainty_median']:.3g}, 95th "
-                         f"percentile {trust['uncertainty_p95']:.3g} stress scales per box length")
+                         f"each node's cells inside the part{spread}): median {trust['uncertainty_median']:.3g}, "
+                         f"95th percentile {trust['uncertainty_p95']:.3g} stress scales per box length")
         if "test_psnr" in self.metrics:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")
@@ -239,6 +242,16 @@ def record_separation(directory: str | Path, entry: dict) -> None:
         record = json.loads(path.read_text())
     record["separations"] = [kept for kept in record.get("separations", []) if kept.get("output") != entry["output"]]
     record["separations"].append(entry)
+    _write_record(directory, record)
+
+
+def record_trust(directory: str | Path, summary: dict) -> None:
+    """Replace ``directory/reconstruction.json``'s trust summary (its ``metrics.trust``) with ``summary``: its
+    trust map was written again (``mi-nest spread``)."""
+    path = Path(directory) / "reconstruction.json"
+    with _damaged_file(path):
+        record = json.loads(path.read_text())
+        record["metrics"]["trust"] = summary
     _write_record(directory, record)
 
 

@@ -12,7 +12,11 @@ These are measured on a lattice over the specimen (a grid's own nodes):
   cells, and the free surface's traction is not asked of it, so the same imbalance leaves it freer to be wrong.
   On the accuracy suite it ranks the actual error with Spearman correlations of 0.74 to 0.80 on the kitten and
   the bracket and 0.41 to 0.55 on the disks, a few hundredths above the imbalance alone on six of seven
-  results (``benchmarks/trust_ranking.py``, docs/reconstruction.md "Where to trust it");
+  results (``benchmarks/trust_ranking.py``, docs/reconstruction.md "Where to trust it"). Where other runs of
+  the same data with other seeds lie beside it (``mi-nest spread``), it is also multiplied by one plus the
+  node's ``seed_spread`` over its median: the error that is the seed's, which one run cannot see;
+- ``seed_spread`` (given other runs): ``sqrt(mean |dev(s) - dev(s_other)|^2 / 2)`` over the other runs (MPa),
+  the deviator's spread from seed to seed as seen from this run;
 - ``coverage``: the share of the training views whose specimen pixels have a ray through the node;
 - ``direction_spread``: ``3 lambda_min`` of the mean ``d d^T`` over those rays (1: directions from all around,
   0: all in one plane, where the tomography cannot tell some components apart);
@@ -28,6 +32,7 @@ held-out residual -0.18 to 0.74 but mostly below 0.4) and are reported beside it
 """
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,9 +60,13 @@ LATTICE = 48
 # Samples along each ray per node spacing.
 SAMPLES_PER_SPACING = 2
 TRUST_FILE = "trust.npz"
+# What reading a damaged trust.npz raises (cut short, edited, another program's).
+READ_ERRORS = (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile)
 # What a trust map holds per node, the uncertainty first.
-TERMS = ("uncertainty", "imbalance", "inside_share", "coverage", "direction_spread", "heldout_residual",
-         "curvature_spread")
+TERMS = ("uncertainty", "imbalance", "inside_share", "seed_spread", "coverage", "direction_spread",
+         "heldout_residual", "curvature_spread")
+# The optional terms, in the order a map stores and loads them.
+OPTIONAL_TERMS = ("curvature_spread", "inside_share", "seed_spread")
 
 
 @dataclass
@@ -77,6 +86,8 @@ class TrustMap:
     curvature_spread: np.ndarray | None = None
     # The share of each node's eight cells inside the specimen (None in maps written before it).
     inside_share: np.ndarray | None = None
+    # The deviator's spread over other runs of the same data (MPa; None until ``mi-nest spread`` gives some).
+    seed_spread: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -87,10 +98,21 @@ class TrustMap:
     def uncertainty(self) -> np.ndarray:
         """How far to trust each node, higher less: its :attr:`imbalance` over its :attr:`inside_share`. A node
         on the surface is held by the balance of fewer cells, and the free surface's traction is not asked of
-        it, so the same imbalance there leaves the field freer to be wrong."""
-        if self.inside_share is None:
-            return self.imbalance
-        return self.imbalance / np.where(self.inside_share > 0, self.inside_share, np.nan)
+        it, so the same imbalance there leaves the field freer to be wrong. With a :attr:`seed_spread`, times one
+        plus the node's spread over its median: where the runs disagree, the seed's error adds to what the balance
+        tells, and where they agree the balance still ranks the nodes (an error both runs share, such as a
+        branch both took, does not vanish from the map)."""
+        uncertainty = self.imbalance
+        if self.inside_share is not None:
+            uncertainty = uncertainty / np.where(self.inside_share > 0, self.inside_share, np.nan)
+        if self.seed_spread is not None:
+            uncertainty = uncertainty * (1.0 + self.seed_spread / self.seed_spread_median)
+        return uncertainty
+
+    @property
+    def seed_spread_median(self) -> float:
+        """The :attr:`seed_spread`'s median over the nodes the imbalance was measured at (MPa)."""
+        return float(np.nanmedian(self.seed_spread[np.isfinite(self.imbalance)]))
 
     def nodes(self) -> np.ndarray:
         """Node positions (nz * ny * nx, 3), x fastest."""
@@ -125,11 +147,15 @@ class TrustMap:
         """What ``reconstruction.json`` records."""
         seen = np.isfinite(self.imbalance)
         uncertainty = self.uncertainty[seen]
-        return {"nodes": int(seen.sum()),
-                "uncertainty_median": _quantile(uncertainty, 0.5), "uncertainty_p95": _quantile(uncertainty, 0.95),
-                "coverage_median": _quantile(self.coverage[seen], 0.5),
-                "poorly_observed_share": float(np.mean(self.direction_spread[seen] < 0.1)) if seen.any() else 0.0,
-                "heldout_residual_by_view": dict(zip(map(str, self.views), np.round(self.view_residuals, 5)))}
+        summary = {"nodes": int(seen.sum()),
+                   "uncertainty_median": _quantile(uncertainty, 0.5), "uncertainty_p95": _quantile(uncertainty, 0.95),
+                   "coverage_median": _quantile(self.coverage[seen], 0.5),
+                   "poorly_observed_share": float(np.mean(self.direction_spread[seen] < 0.1)) if seen.any() else 0.0,
+                   "heldout_residual_by_view": dict(zip(map(str, self.views), np.round(self.view_residuals, 5)))}
+        if self.seed_spread is not None:
+            summary["seed_spread_median"] = self.seed_spread_median
+            summary["seed_spread_p95"] = _quantile(self.seed_spread[seen], 0.95)
+        return summary
 
     def save(self, path: str | Path) -> None:
         with atomic_path(Path(path), ".npz") as tmp:
@@ -137,7 +163,7 @@ class TrustMap:
                                 direction_spread=self.direction_spread, heldout_residual=self.heldout_residual,
                                 imbalance=self.imbalance,
                                 view_residuals=np.asarray(self.view_residuals), views=np.asarray(self.views),
-                                **{name: getattr(self, name) for name in ("curvature_spread", "inside_share")
+                                **{name: getattr(self, name) for name in OPTIONAL_TERMS
                                    if getattr(self, name) is not None})
 
     @classmethod
@@ -145,8 +171,7 @@ class TrustMap:
         with np.load(path) as data:
             return cls(data["bbox_min"], data["bbox_max"], data["coverage"], data["direction_spread"],
                        data["heldout_residual"], data["imbalance"], data["view_residuals"].tolist(),
-                       data["views"].tolist(), *(data[name] if name in data else None
-                                                 for name in ("curvature_spread", "inside_share")))
+                       data["views"].tolist(), *(data[name] if name in data else None for name in OPTIONAL_TERMS))
 
 
 def _quantile(values, q):
@@ -321,6 +346,14 @@ class _Splat:
         dr.scatter_reduce(dr.ReduceOp.Add, total, value, node, valid)
         dr.scatter_reduce(dr.ReduceOp.Add, weight, 1.0, node, valid)
         return np.array(total), np.array(weight)
+
+
+def seed_spread(field: TrainableField, others: list[TrainableField], nodes: np.ndarray) -> np.ndarray:
+    """:attr:`TrustMap.seed_spread` of ``field`` at ``nodes`` (N, 3) from ``others``, runs of the same data with
+    other seeds: ``sqrt(mean |dev(s) - dev(s_other)|^2 / 2)`` (MPa). Two runs whose errors are independent and
+    alike differ by sqrt(2) times that error, and this run's own error is part of each difference."""
+    squared = sum(error_map(field, other, nodes) ** 2 for other in others)
+    return np.sqrt(squared / (2 * len(others)))
 
 
 def error_map(field: TrainableField, truth, nodes: np.ndarray) -> np.ndarray:

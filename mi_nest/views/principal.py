@@ -185,7 +185,7 @@ def write_principal_figure(path: str | Path, shown: PrincipalSlice, truth: Princ
 def _trust_column(figure, column, shown, truth, uncertainty):
     """The uncertainty above (with a truth) the truth row left empty and the actual error it should rank."""
     extent = shown.image.extent()
-    panels = [(column[0], uncertainty, "viridis", "imbalance (stress scales / box length)",
+    panels = [(column[0], uncertainty, "viridis", "stress scales / box length",
                "uncertainty (trust.npz)")]
     if truth is not None:
         column[1].axis("off")

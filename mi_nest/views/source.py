@@ -1,7 +1,6 @@
 """What a view looks at: a scene's own (true) field, or a reconstruction's field in its scene's specimens."""
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass, field as dataclass_field
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import numpy as np
 from ..dataset.truth import recorded_scene, truth_scene
 from ..fields import StressField
 from ..reconstruct import Reconstruction
-from ..reconstruct.trust import TRUST_FILE, TrustMap
+from ..reconstruct.trust import READ_ERRORS, TRUST_FILE, TrustMap
 from ..scene import load_scene, reference_pose, specimen_bounds, specimen_shapes
 from ..separation import FULL_FILE, RECORD_FILE
 
@@ -111,6 +110,6 @@ def _trust(path: Path) -> TrustMap | None:
         return None
     try:
         return TrustMap.load(path / TRUST_FILE)
-    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as error:
+    except READ_ERRORS as error:
         raise ValueError(f"{path / TRUST_FILE} is damaged and cannot be read ({error}); delete it to go on without "
                          "the trust map, or run the mi-nest reconstruct command that wrote it again") from error
