@@ -9,7 +9,9 @@ noted and raised there; a second one raises at once, for the impatient.
 """
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from contextlib import contextmanager
 from typing import Iterator
@@ -30,6 +32,24 @@ def _on_sigint(signum, frame):
     raise KeyboardInterrupt
 
 
+# How soon an interrupt that Python dropped is sent again (s): after the finalizer it landed in has returned.
+RESEND_DELAY = 0.005
+
+
+def _unraisable(previous):
+    """A ``sys.unraisablehook`` for the block :func:`handling` guards. Our ``KeyboardInterrupt`` raised where Python
+    cannot propagate it (a ``__del__`` or a weakref callback that the garbage collector ran) would be printed with
+    a traceback and lost: it is sent again instead, once that code has returned, and counted once."""
+    def hook(unraisable):
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            previous(unraisable)
+            return
+        global _received
+        _received -= 1
+        threading.Timer(RESEND_DELAY, os.kill, (os.getpid(), signal.SIGINT)).start()
+    return hook
+
+
 @contextmanager
 def handling() -> Iterator[None]:
     """Install the SIGINT handler for the block (restoring the previous one after), unless it is installed.
@@ -41,12 +61,14 @@ def handling() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is _on_sigint:
         yield
         return
-    previous = signal.signal(signal.SIGINT, _on_sigint)
+    previous, previous_hook = signal.signal(signal.SIGINT, _on_sigint), sys.unraisablehook
+    sys.unraisablehook = _unraisable(previous_hook)
     _received = 0
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
 
 
 @contextmanager
