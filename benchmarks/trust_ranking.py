@@ -78,9 +78,11 @@ def rank(directory: Path) -> dict:
     row["rho_twin_error"] = row["rho_seed_spread"] = row["rho_uncertainty_with_spread"] = float("nan")
     if twin is not None:
         row["rho_twin_error"] = round(float(spearmanr(error_map(twin.field, truth, nodes[inside]), error).statistic), 3)
+        # As mi-nest spread writes it: at the nodes whose imbalance is measured.
+        measured = inside & np.isfinite(trust.imbalance.ravel())
         spread = np.full(len(nodes), np.nan)
-        spread[inside] = seed_spread(result.field, [twin.field], nodes[inside])
-        row["rho_seed_spread"] = round(float(spearmanr(spread[inside], error).statistic), 3)
+        spread[measured] = seed_spread(result.field, [twin.field], nodes[measured])
+        row["rho_seed_spread"] = round(float(spearmanr(spread[measured], error[measured[inside]]).statistic), 3)
         trust.seed_spread = spread.reshape(trust.imbalance.shape)
         uncertainty = trust.uncertainty.ravel()[inside]
         both = np.isfinite(uncertainty)

@@ -47,10 +47,10 @@ def error_ranking(result: Reconstruction, trust: TrustMap) -> tuple[float, float
         return None
     scene, truth = recorded_truth(Dataset(result.source["dataset"]))
     nodes = trust.nodes()
-    inside = occupancy.inside(scene, specimen_shapes(scene), nodes) & np.isfinite(trust.uncertainty.ravel())
+    with_spread, without = trust.uncertainty.ravel(), replace(trust, seed_spread=None).uncertainty.ravel()
+    inside = occupancy.inside(scene, specimen_shapes(scene), nodes) & np.isfinite(with_spread)
     error = error_map(result.field, truth, nodes[inside])
-    return tuple(float(spearmanr(uncertainty.ravel()[inside], error).statistic)
-                 for uncertainty in (trust.uncertainty, replace(trust, seed_spread=None).uncertainty))
+    return tuple(float(spearmanr(uncertainty[inside], error).statistic) for uncertainty in (with_spread, without))
 
 
 def write_seed_spread(directories: list[str | Path]) -> list[SpreadResult]:
@@ -84,10 +84,9 @@ def write_seed_spread(directories: list[str | Path]) -> list[SpreadResult]:
     spreads = []
     for index, (path, result, trust) in enumerate(zip(paths, results, maps)):
         others = [other.field for position, other in enumerate(results) if position != index]
-        measured = np.isfinite(trust.imbalance)
+        measured = np.isfinite(trust.imbalance.ravel())
         spread = np.full(trust.imbalance.size, np.nan)
-        spread[measured.ravel()] = seed_spread(result.field, others, trust.nodes()[measured.ravel()])
-        spread = spread.reshape(trust.imbalance.shape)
+        spread[measured] = seed_spread(result.field, others, trust.nodes()[measured])
         if not np.nanmedian(spread[measured]) > 0:
             raise ValueError(f"{path} holds the same field as the other runs at most of its nodes (the same seed, "
                              "or a copy): run mi-nest reconstruct again with another --option seed=N")
@@ -96,11 +95,10 @@ def write_seed_spread(directories: list[str | Path]) -> list[SpreadResult]:
     with contextlib.ExitStack() as held:
         for path in paths:
             held.enter_context(locked_directory(path))
-        for path, trust, spread in zip(paths, maps, spreads):
-            trust.seed_spread = spread
+        for path, where, trust, spread in zip(paths, resolved, maps, spreads):
+            trust.seed_spread = spread.reshape(trust.imbalance.shape)
             trust.save(path / TRUST_FILE)
-            summary = trust.summary() | {"seed_spread_from": [str(other) for other in resolved
-                                                              if other != path.resolve()]}
+            summary = trust.summary() | {"seed_spread_from": [str(other) for other in resolved if other != where]}
             record_trust(path, summary)
             written.append(SpreadResult(path, summary))
     for entry, result, trust in zip(written, results, maps):
