@@ -66,7 +66,7 @@ def test_a_run_writes_its_trust_map_and_summary(one_axis_and_two_axes, tmp_path)
     measured = np.isfinite(trust.imbalance)
     assert np.array_equal(np.isfinite(trust.curvature_spread), measured)
     assert np.nanmedian(trust.curvature_spread) == pytest.approx(1.0)
-    assert "equilibrium imbalance" in result.describe()
+    assert "equilibrium imbalance" in result.describe() and "given to mi-nest spread" in result.describe()
 
 
 def test_the_trust_map_at_a_point_is_its_nearest_measured_node():
@@ -233,4 +233,5 @@ def test_mi_nest_spread_gives_each_run_the_others_spread_and_refuses_what_it_can
     summary = json.loads((runs["a"] / "reconstruction.json").read_text())["metrics"]["trust"]
     assert summary["seed_spread_from"] == [str(runs["b"].resolve())]
     assert summary["seed_spread_median"] == pytest.approx(float(np.median(trusts[0].seed_spread[measured])))
-    assert "times one plus its seed spread over the median" in Reconstruction.load(runs["a"]).describe()
+    described = Reconstruction.load(runs["a"]).describe()
+    assert "times one plus its seed spread over the median" in described and "given to mi-nest spread" not in described

@@ -172,9 +172,12 @@ class Reconstruction:
             spread = "" if "seed_spread_median" not in trust else \
                 (f", times one plus its seed spread over the median {trust['seed_spread_median']:.3g} MPa "
                  f"({len(trust['seed_spread_from'])} other run(s))")
+            second_seed = "" if spread else \
+                ("; where the error is the seed's it ranks it better once a second run (--option seed=1) is given "
+                 "to mi-nest spread")
             lines.append(f"uncertainty (where to trust it; trust.npz: the equilibrium imbalance over the share of "
                          f"each node's cells inside the part{spread}): median {trust['uncertainty_median']:.3g}, "
-                         f"95th percentile {trust['uncertainty_p95']:.3g} stress scales per box length")
+                         f"95th percentile {trust['uncertainty_p95']:.3g} stress scales per box length{second_seed}")
         if "test_psnr" in self.metrics:
             lines.append(f"held-out PSNR {self.metrics['test_psnr']:.2f} dB over {self.metrics['test_views']} "
                          "rotations")
