@@ -269,7 +269,10 @@ def test_each_tab_keeps_its_own_controls_and_frames(viewer):
             # The other tab's slider and frame are as they were.
             values = [page.locator("input").evaluate_all("(inputs) => inputs.map(i => i.value)") for page in pages]
             assert "1" in values[1] and "1" not in values[0]
-            np.testing.assert_array_equal(_shown(second), before)
+            # Within 8-bit rounding, as against a direct render: the second tab's first frame and the one drawn
+            # once it reports its camera (a float's rounding away) may both pass for ``before``; the first tab's
+            # load would move its fringes by far more.
+            assert np.abs(_shown(second) - before).max() <= 1
         finally:
             browser.close()
 
