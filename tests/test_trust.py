@@ -66,7 +66,8 @@ def test_a_run_writes_its_trust_map_and_summary(one_axis_and_two_axes, tmp_path)
     measured = np.isfinite(trust.imbalance)
     assert np.array_equal(np.isfinite(trust.curvature_spread), measured)
     assert np.nanmedian(trust.curvature_spread) == pytest.approx(1.0)
-    assert "equilibrium imbalance" in result.describe() and "given to mi-nest spread" in result.describe()
+    described = result.describe()
+    assert "equilibrium imbalance" in described and "given to mi-nest spread" in described
 
 
 def test_the_trust_map_at_a_point_is_its_nearest_measured_node():
