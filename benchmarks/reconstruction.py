@@ -36,7 +36,8 @@ from mi_nest.dataset import SimulationSettings, simulate
 args = json.loads(sys.argv[1])
 dr.set_thread_count(args["threads"])
 warnings.simplefilter("ignore")
-settings = SimulationSettings(azimuths=args["rotations"], elevations=args["rotations"], res=args["res"], spp=1)
+settings = SimulationSettings(azimuths=args["rotations"], elevations=args["rotations"], res=args["res"],
+                              spp=args["spp"])
 simulate(args["scene"], args["data"], settings, defines=args["defines"], progress=False)
 scene = mi_nest.load_scene(args["scene"], res=args["res"], **args["defines"])
 # Every option the defaults of some version changed is given: the two versions run the same configuration.
@@ -96,6 +97,8 @@ def main():
     parser.add_argument("--iterations", type=int, default=500)
     parser.add_argument("--resolution", type=int, default=16, help="grid nodes along the longest axis")
     parser.add_argument("--batch-size", type=int, default=2048)
+    parser.add_argument("--spp", type=int, default=1,
+                        help="samples per pixel simulated: the rays per pixel the fit averages, up to 4 (default: 1)")
     parser.add_argument("--rounds", type=int, default=3, help="alternating runs of each version (default: 3)")
     parser.add_argument("--threads", type=int, default=1, help="Dr.Jit threads (default 1: deterministic)")
     args = parser.parse_args()
@@ -108,7 +111,7 @@ def main():
             versions["baseline"] = installed_layout(args.baseline.resolve(), tmp / "baseline")
         print(f"{cpu_name()}; {args.scene} {defines}, {args.rotations}x{args.rotations} rotations at "
               f"{args.res}x{args.res}, grid {args.resolution}, {args.iterations} iterations of {args.batch_size} "
-              f"pixels, {args.threads} Dr.Jit thread(s)")
+              f"pixels x {min(args.spp, 4)} rays, {args.threads} Dr.Jit thread(s)")
         results = {name: [] for name in versions}
         for round_ in range(args.rounds):
             # alternate who goes first: the first run of a round may pay for kernels the second finds cached

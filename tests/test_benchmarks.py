@@ -12,7 +12,7 @@ Cost, measured one case after another on 2 cores (AMD EPYC, AVX-512), Dr.Jit's k
 viewer_browser 24.2, time_to_accuracy 23.3, refraction 12.2, deterministic_cost 9.3, render_versions 9.2,
 dataset 8.2, accuracy_suite 9.5 (two cases), separation 4.9, viewer 4.5, trust_ranking 4.4, iteration_profile 4.2,
 forward_versions 3.0, memory 2.8, reconstruction 2.2, methods 1.2, loss 1.0, fem 0.9, smoothness 0.9,
-grid_lookup 0.7, forward 0.7, spectral 3.5, bands 22, cluster 4, gpu 6, network_lattice 2.5: 166 s for the
+grid_lookup 0.7, forward 0.7, replay 6.0, spectral 3.5, bands 22, cluster 4, gpu 6, network_lattice 2.5: 166 s for the
 module (151 s in a busier run; 157 s with an empty kernel cache, where refraction took 31 s). None is marked
 slow: the module fits in the default run.
 """
@@ -132,6 +132,12 @@ CASES = {
                         "--resolution", "6", "--batch-size", "64", "--rounds", "1"],
                        [r"round 1 baseline +[\d.]+ it/s .*", r"ratio this checkout / baseline: [\d.]+",
                         r"results: identical \(loss and error, every round\)"], []),
+    "replay": (["--scene", "disk_compression", "-D", "load=100", "-D", "contact_width=4", "--rotations", "2",
+                "--resolution", "8", "--at", "2", "--repeats", "1"],
+               [r".*grid 8x8x3, \d+ rays, \d+ Dr\.Jit threads, best of 1",
+                *(rf"  {step}: primal [\d.]+ ms \(keeping its segments [\d.]+\); replay querying the scene [\d.]+ ms, "
+                  r"through the kept segments [\d.]+ ms: [\d.]+x; gradients apart by [\d.e+-]+ of their largest"
+                  for step in ("the grid's step", "one step a segment"))], []),
     "refraction": (["--rounds", "1", "--res", "16", "--spp", "1", "--step", "1", "--iterations", "5", "--rotations",
                     "2"],
                    [r"disk_compression: render 16x16, 1 spp, step 1\.0 mm, median of 1",

@@ -90,9 +90,53 @@ def test_replayed_gradient_of_a_spectral_march_matches_finite_differences(method
     assert max(np.abs(g).max() for g in gradients.values()) > 1e-3
 
 
+def test_a_replay_through_the_kept_segments_is_the_replay_that_queries_the_scene():
+    """Three boxes along the rays, two glued face to face and one across a gap: each ray marches up to three
+    segments. Replayed from the segments its primal walk kept, the gradient is the one a replay that finds every
+    crossing again gives, and the walk kept each ray's segments (its inside length is theirs). A log too small for
+    a batch replays it by querying the scene, and the next batches keep enough."""
+    interior = {"type": "stress", "model": "uniform", "stress_optic_coefficient": 50.0}
+    loaded = scene([box((4, 4, 1.5), (0, 0, 1.25), interior), box((4, 4, 1.0), (0, 0, 0.0), interior),
+                    box((4, 4, 1.0), (0, 0, -1.5), interior)], res=2, view=2.5)
+    integrator = mi.load_dict({"type": "photoelastic", "method": "product", "step_size": 0.4, "jitter": True,
+                               "max_bounces": 0})
+    tracer = integrator.tracer
+    field = _field("grid")
+    rays, weights = _batch()
+    right = mi.Vector3f(1, 0, 0)
+
+    def replayed(replayable):
+        variables = {name: type(v)(np.array(v)) for name, v in field.parameters().items()}
+        for v in variables.values():
+            dr.enable_grad(v)
+        field.assign(variables)
+        traced = tracer.trace_rays(loaded, rays, right, seed=5, field=field, replayable=replayable)
+        tracer.backpropagate_rays(loaded, rays, right, traced, tuple(mi.Float(w) for w in weights), seed=5,
+                                  field=field)
+        field.finish_backward()
+        return np.array(dr.grad(variables["grid"])).ravel(), traced.segments
+
+    queried, _ = replayed(False)
+    kept, segments = replayed(True)
+    assert np.abs(queried).max() > 1e-3
+    np.testing.assert_allclose(kept, queried, rtol=1e-5, atol=1e-6 * np.abs(queried).max())
+    counts = np.array(segments.count)
+    assert counts.max() == 3 and np.count_nonzero(counts == 3) >= RAYS // 2
+    slots = np.arange(RAYS)[:, None] * segments.capacity + np.arange(3)[None, :]
+    lengths = np.where(np.arange(3)[None, :] < counts[:, None],
+                       np.array(segments.h)[slots] * np.array(segments.steps)[slots], 0.0)
+    np.testing.assert_allclose(lengths.sum(axis=1), np.array(tracer.trace_rays(loaded, rays, right, seed=5,
+                                                                               field=field).length), rtol=1e-5)
+    tracer.segments_kept = 2
+    overflowed, _ = replayed(True)
+    np.testing.assert_allclose(overflowed, queried, rtol=1e-5, atol=1e-6 * np.abs(queried).max())
+    assert tracer.segments_kept == 4
+
+
 def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, largest, view=SCENE_VIEW):
     """The replayed gradient of ``loss(jones)`` over ``rays`` (seen in ``view``) against central differences: the
-    gradients, how many entries were checked, and the traced rays."""
+    gradients, how many entries were checked, and the traced rays. Traced as the optimiser traces: straight rays
+    replay the segments their primal walk kept."""
     right = mi.Vector3f(1, 0, 0)
 
     def value(parameters):
@@ -106,7 +150,7 @@ def _replayed_against_finite_differences(loaded, integrator, field, rays, loss, 
     for v in variables.values():
         dr.enable_grad(v)
     field.assign(variables)
-    traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field, view=view)
+    traced = integrator.tracer.trace_rays(loaded, rays, right, seed=5, field=field, view=view, replayable=True)
     with dr.resume_grad():
         leaf = tuple(mi.Float(x) for x in traced.state)
         dr.enable_grad(leaf)

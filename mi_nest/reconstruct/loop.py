@@ -332,7 +332,7 @@ class Run:
         # The step follows the grid's spacing as it stands (coarse-to-fine).
         step_size = forward_step(self.config, self.field)
         traced = tracer.trace_rays(self.scene, rays, right, seed=seed, field=self.field, step_size=step_size,
-                                   view=self.channels.view)
+                                   view=self.channels.view, replayable=True)
         own_rays = len(rows) * samples
         length = traced.length if pairs is None else _head(traced.length, own_rays)
         admitted = None

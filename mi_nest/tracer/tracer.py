@@ -27,7 +27,7 @@ from .segment import Segment, equal_steps
 from .registry import method_named, require_adjoint, require_replay_through_refraction
 from .setup import SceneSetup
 from .spectral import can_march_spectra, spectral, split_lanes
-from .walk import past_panel, walk
+from .walk import SegmentLog, past_panel, walk, walk_logged
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,10 @@ class PathKind(enum.Enum):
     SPECTRAL = "straight, at several wavelengths"   # a spectral march's state (spectral.py)
 
 
+# Segments per ray a replayable batch keeps at first: a convex part marches one, a stack of parts a few.
+SEGMENTS_KEPT = 4
+
+
 @dataclass(frozen=True)
 class TracedRays:
     """A ray batch's traced state, whether an opaque shape stops each ray, and its path length (mm) inside
@@ -147,6 +151,7 @@ class TracedRays:
     blocked: mi.Bool
     length: mi.Float
     lanes: int = 1          # a refracted batch's wavelengths: their matrices (8 or 16 numbers each) side by side
+    segments: SegmentLog | None = None      # a straight batch's marched segments, for its replay
 
     def jones(self, state: tuple | None = None) -> su2.Quaternion | jones.Biquaternion | jones.Incoherent | list:
         """The Jones matrices of ``state`` (default: the traced one; a differentiable copy of it to take a loss's
@@ -176,6 +181,8 @@ class Tracer:
     def __init__(self, config: TracerConfig = TracerConfig()):
         self.config = config
         self.method = config.model()
+        # Segments a replayable batch keeps per ray; grows (up to max_crossings) once a batch marched more.
+        self.segments_kept = min(SEGMENTS_KEPT, config.max_crossings)
 
     def plan(self, scene: mi.Scene, sensor: mi.Sensor | None = None, right: mi.Vector3f | None = None,
              field: StressField | None = None, view: View = SCENE_VIEW, decision: Decision | None = None,
@@ -212,7 +219,7 @@ class Tracer:
 
     def trace_rays(self, scene: mi.Scene, rays: mi.Ray3f, right: mi.Vector3f, seed: int = 0,
                    field: StressField | None = None, step_size: float | None = None,
-                   view: View = SCENE_VIEW) -> TracedRays:
+                   view: View = SCENE_VIEW, replayable: bool = False) -> TracedRays:
         """Primal march of arbitrary rays (e.g. a training batch drawn across views).
 
         ``right`` is each ray's image-right direction (its camera's), which fixes
@@ -221,6 +228,8 @@ class Tracer:
         configuration's). Where surfaces refract the state is the path's general
         Jones matrix, and with ``max_bounces`` a sampled ghost path's after it.
         ``view`` scales the phases; with lanes, one Jones product per wavelength.
+        ``replayable``: straight rays keep their marched segments, and :meth:`backpropagate_rays` marches them
+        again without querying the scene.
         """
         with dr.suspend_grad():
             plan = self.plan(scene, None, right, field, view, step_size=step_size)
@@ -238,11 +247,13 @@ class Tracer:
                 state = tuple(x for lane in lanes for x in lane)
                 dr.eval(state, path.blocked, path.length)
                 return TracedRays(kind, method, state, path.blocked, path.length, len(lanes))
+            log = SegmentLog(dr.width(rays.o), self.segments_kept) if replayable else None
             (state, _), blocked, length = self._walk(scene, rays, plan, mi.Bool(True), seeds, method.trace_start(),
-                                                     method.trace)
+                                                     method.trace, log)
             blocked = past_panel(plan.setup, rays, blocked)
-            dr.eval(state, blocked, length)
-            return TracedRays(PathKind.SPECTRAL if plan.lanes else PathKind.STRAIGHT, method, state, blocked, length)
+            dr.eval(state, blocked, length, log.arrays() if log is not None else ())
+            return TracedRays(PathKind.SPECTRAL if plan.lanes else PathKind.STRAIGHT, method, state, blocked, length,
+                              segments=log)
 
     def backpropagate_rays(self, scene: mi.Scene, rays: mi.Ray3f, right: mi.Vector3f, traced: TracedRays,
                            state_grad: tuple, seed: int = 0, field: StressField | None = None,
@@ -279,7 +290,19 @@ class Tracer:
             # which would then be rebuilt whenever they change.
             state, state_grad = tuple(mi.Float(x) for x in traced.state), tuple(mi.Float(x) for x in state_grad)
             dr.make_opaque(state, state_grad)
-            self.replay(scene, rays, plan, mi.Bool(True), _ray_seeds(seed, dr.width(rays.o)), state, state_grad)
+            self.replay(scene, rays, plan, mi.Bool(True), _ray_seeds(seed, dr.width(rays.o)), state, state_grad,
+                        self._complete(traced.segments))
+
+    def _complete(self, segments: SegmentLog | None) -> SegmentLog | None:
+        """``segments`` if they hold every segment the walk marched; else None (the replay queries the scene again)
+        and later batches keep as many as this one marched."""
+        if segments is None:
+            return None
+        most = segments.most()
+        if most <= segments.capacity:
+            return segments
+        self.segments_kept = min(1 << (most - 1).bit_length(), self.config.max_crossings)
+        return None
 
     def trace_chords(self, scene: mi.Scene, origins: mi.Point3f, d: mi.Vector3f, chords: list[tuple],
                      right: mi.Vector3f, step_size: float | None = None, seed: int = 0,
@@ -403,9 +426,9 @@ class Tracer:
                 aovs += plan.lane_outputs.values(lane, lane_seen, radiance)
         return mi.Spectrum(radiance * setup.polariscope.intensity(matrix)), aovs
 
-    def _walk(self, scene, ray, plan, active, seeds, progress, segment_step):
+    def _walk(self, scene, ray, plan, active, seeds, progress, segment_step, log=None):
         return walk(scene, ray, plan.setup, plan.decision.step_size, active, seeds, progress, segment_step,
-                    self.config.max_crossings)
+                    self.config.max_crossings, log)
 
     def walk_refracted(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool,
                        seeds: mi.UInt32, bounces: int = 0) -> refraction.RefractedPath:
@@ -423,14 +446,17 @@ class Tracer:
         return tuple(dr.select(dark, 0.0, x) for matrix, _ in ghost.lanes for x in tuple(matrix[0]) + tuple(matrix[1]))
 
     def replay(self, scene: mi.Scene, ray: mi.Ray3f, plan: TracePlan, active: mi.Bool, seeds: mi.UInt32,
-               state: tuple, state_grad: tuple) -> None:
+               state: tuple, state_grad: tuple, segments: SegmentLog | None = None) -> None:
         """Adjoint pass of the straight walk: march again, back-propagating ``state_grad`` into every step's
-        field lookups."""
+        field lookups; through the primal walk's ``segments`` where it kept them."""
         method = plan.decision.method
 
         def segment_step(progress: object, segment: Segment, setup: SceneSetup) -> object:
             return method.replay(progress, state_grad, segment, setup)
-        self._walk(scene, ray, plan, active, seeds, method.replay_start(state), segment_step)
+        if segments is not None:
+            walk_logged(ray, plan.setup, segments, method.replay_start(state), segment_step)
+        else:
+            self._walk(scene, ray, plan, active, seeds, method.replay_start(state), segment_step)
 
 
 def _ray_seeds(seed, count):

@@ -23,9 +23,11 @@ RETRIES = 2
 
 @dr.syntax
 def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, active: mi.Bool, seeds: mi.UInt32,
-         progress: object, segment_step: Callable, max_crossings: int) -> tuple[object, mi.Bool, mi.Float]:
+         progress: object, segment_step: Callable, max_crossings: int,
+         log: SegmentLog | None = None) -> tuple[object, mi.Bool, mi.Float]:
     """Follow each ray through every specimen; ``progress = segment_step(progress, segment, setup)`` for each
-    inside segment (what the pass threads along the ray: the primal product so far, or the replay's).
+    inside segment (what the pass threads along the ray: the primal product so far, or the replay's). With a
+    ``log``, the marched segments go into it, for :func:`walk_logged` to march again.
 
     Returns ``(progress, blocked, length)``: whether an opaque shape stops the ray,
     and its length inside specimens. The primal pass and the adjoint replay
@@ -53,10 +55,11 @@ def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, ac
     blocked = mi.Bool(False)
     length = mi.Float(0)
     crossings = mi.UInt32(0)
+    logged = mi.UInt32(0)
     active = mi.Bool(active)
 
     # Only what changes is loop state: Dr.Jit traces the body again to drop any state that does not.
-    while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment_step, setup, step_size]):
+    while dr.hint(active, exclude=[coefficients, d, ray, scene, seeds, segment_step, setup, step_size, log]):
         si = scene.ray_intersect(mi.Ray3f(launch, d, reach, ray.time, ray.wavelengths),
                                  ray_flags=mi.RayFlags.Minimal, coherent=setup.coherent_rays & (retries == 0),
                                  active=active)
@@ -75,7 +78,9 @@ def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, ac
         marched = active & hit & (inside != 0) & ~unexpected
         steps, h = equal_steps(chord, marched, step_size)
         segment_seed = mi.sample_tea_32(seeds, crossings)[0]
-        progress = segment_step(progress, Segment(steps, h, inside, origin, d, coefficients, segment_seed), setup)
+        segment = Segment(steps, h, inside, origin, d, coefficients, segment_seed)
+        progress = segment_step(progress, segment, setup)
+        logged = _log_segment(log, segment, logged, marched)
         length += dr.select(marched, chord, 0.0)
         crossed = ~retry
         blocked |= crossed & hit & (hit_medium == 0)
@@ -88,7 +93,65 @@ def walk(scene: mi.Scene, ray: mi.Ray3f, setup: SceneSetup, step_size: float, ac
         retries = dr.select(crossed, 0, retries + 1)
         crossings += 1
         active &= (hit | retry) & ~blocked & (crossings < max_crossings)
+    _close_log(log, logged)
     return progress, blocked, length
+
+
+class SegmentLog:
+    """The inside segments a straight walk marched, ray by ray (the first ``capacity`` of each), so that a replay
+    of it marches them again without querying the scene: a walk's intersections cost as much as a coarse grid's
+    steps. ``count`` is how many each ray marched, kept or not."""
+
+    def __init__(self, rays: int, capacity: int):
+        self.capacity = capacity
+        size = rays * capacity
+        # Only the first ``count`` slots of a ray are written and read.
+        self.steps, self.medium, self.seed = (dr.empty(mi.UInt32, size) for _ in range(3))
+        self.h = dr.empty(mi.Float, size)
+        self.origin = dr.empty(mi.Point3f, size)
+        self.count = mi.UInt32(0)
+
+    def slots(self, index: mi.UInt32) -> mi.UInt32:
+        return dr.arange(mi.UInt32, dr.width(index)) * self.capacity + index
+
+    def arrays(self) -> tuple:
+        return self.steps, self.medium, self.seed, self.h, self.origin, self.count
+
+    def most(self) -> int:
+        """The most segments any ray marched (a read back from the device)."""
+        return int(dr.max(self.count, axis=None)[0]) if dr.width(self.count) else 0
+
+
+def _log_segment(log: SegmentLog | None, segment: Segment, logged: mi.UInt32, marched: mi.Bool) -> mi.UInt32:
+    if log is None:
+        return logged
+    slot = log.slots(logged)
+    for target, value in ((log.steps, segment.steps), (log.medium, segment.medium), (log.seed, segment.seed),
+                          (log.h, segment.h), (log.origin, segment.origin)):
+        dr.scatter(target, value, slot, marched & (logged < log.capacity))
+    return logged + dr.select(marched, 1, 0)
+
+
+def _close_log(log: SegmentLog | None, logged: mi.UInt32) -> None:
+    if log is not None:
+        log.count = logged
+
+
+@dr.syntax
+def walk_logged(ray: mi.Ray3f, setup: SceneSetup, log: SegmentLog, progress: object,
+                segment_step: Callable) -> object:
+    """:func:`walk`'s segments again, from its ``log``: ``progress`` threaded through them in the same order."""
+    d = mi.Vector3f(ray.d)
+    coefficients = setup.projection_coefficients(d)
+    index = mi.UInt32(0)
+    while dr.hint(index < log.count, exclude=[coefficients, d, log, segment_step, setup]):
+        slot = log.slots(index)
+        segment = Segment(dr.gather(mi.UInt32, log.steps, slot), dr.gather(mi.Float, log.h, slot),
+                          dr.gather(mi.UInt32, log.medium, slot), dr.gather(mi.Point3f, log.origin, slot), d,
+                          coefficients, dr.gather(mi.UInt32, log.seed, slot))
+        progress = segment_step(progress, segment, setup)
+        index += 1
+    return progress
 
 
 def past_panel(setup: SceneSetup, ray: mi.Ray3f, blocked: mi.Bool) -> mi.Bool:
