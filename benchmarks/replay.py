@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 import warnings
 from pathlib import Path
 
@@ -29,7 +28,9 @@ from mi_nest.reconstruct import loop
 from mi_nest.reconstruct.forward import forward_step
 from mi_nest.reconstruct.rays import stratified
 
+from iteration_profile import optimize_stepping_with
 from reconstruction import cpu_name
+from spectral import best_of
 
 
 class Captured(Exception):
@@ -46,26 +47,11 @@ def captured_run(scene, data, resolution, at):
             held["run"], held["tracer"] = self, tracer
             raise Captured
         return own(self, tracer)
-    loop.Run.step = step
     try:
-        mi_nest.optimize(scene, data, iterations=at + 1, progress=False, resolution=resolution, coarse_to_fine=False)
+        optimize_stepping_with(scene, data, at + 1, step, {"resolution": resolution, "coarse_to_fine": False})
     except Captured:
         pass
-    finally:
-        loop.Run.step = own
     return held["run"], held["tracer"]
-
-
-def best_ms(function, repeats):
-    function()
-    dr.sync_thread()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        dr.sync_thread()
-        times.append(time.perf_counter() - start)
-    return 1000 * min(times)
 
 
 def main():
@@ -83,9 +69,8 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         data = args.data or Path(tmp) / "data"
         if not (data / "dataset.json").is_file():
-            simulate(args.scene, data, SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=64,
-                                                             spp=4), defines=defines,
-                     progress=False)
+            settings = SimulationSettings(azimuths=args.rotations, elevations=args.rotations, res=64, spp=4)
+            simulate(args.scene, data, settings, defines=defines, progress=False)
         scene = mi_nest.load_scene(args.scene, res=64, **defines)
         run, tracer = captured_run(scene, data, args.resolution, args.at)
         rng = np.random.default_rng(0)
@@ -104,7 +89,7 @@ def main():
                 def primal(kept=kept):
                     traced[kept] = tracer.trace_rays(run.scene, rays, right, seed=5, field=run.field,
                                                      step_size=step, view=run.channels.view, replayable=kept)
-                times[("primal", kept)] = best_ms(primal, args.repeats)
+                times[("primal", kept)] = 1000 * best_of(args.repeats, primal)[0]
                 adjoint = tuple(mi.Float(np.random.default_rng(1).normal(size=dr.width(rays.o)).astype(np.float32))
                                 for _ in traced[kept].state)
 
@@ -114,7 +99,7 @@ def main():
                     tracer.backpropagate_rays(run.scene, rays, right, traced[kept], adjoint, seed=5, field=run.field,
                                               step_size=step, view=run.channels.view)
                     dr.eval([dr.grad(parameter) for parameter in parameters])
-                times[("replay", kept)] = best_ms(replay, args.repeats)
+                times[("replay", kept)] = 1000 * best_of(args.repeats, replay)[0]
                 gradients[kept] = np.concatenate([dr.grad(p).numpy().ravel() for p in parameters])
             apart = np.abs(gradients[True] - gradients[False]).max() / max(np.abs(gradients[False]).max(), 1e-30)
             print(f"  {name}: primal {times[('primal', False)]:.2f} ms (keeping its segments "
