@@ -124,7 +124,7 @@ def test_a_replay_through_the_kept_segments_is_the_replay_that_queries_the_scene
     assert counts.max() == 3 and np.count_nonzero(counts == 3) >= RAYS // 2
     slots = np.arange(RAYS)[:, None] * segments.capacity + np.arange(3)[None, :]
     lengths = np.where(np.arange(3)[None, :] < counts[:, None],
-                       np.array(segments.h)[slots] * np.array(segments.steps)[slots], 0.0)
+                       np.array(segments.kept["h"])[slots] * np.array(segments.kept["steps"])[slots], 0.0)
     np.testing.assert_allclose(lengths.sum(axis=1), np.array(tracer.trace_rays(loaded, rays, right, seed=5,
                                                                                field=field).length), rtol=1e-5)
     tracer.segments_kept = 2

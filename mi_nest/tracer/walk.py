@@ -102,20 +102,32 @@ class SegmentLog:
     of it marches them again without querying the scene: a walk's intersections cost as much as a coarse grid's
     steps. ``count`` is how many each ray marched, kept or not."""
 
+    # What a segment keeps, of Segment's fields (the ray's direction and coefficients are the ray's own).
+    KEPT = (("steps", mi.UInt32), ("h", mi.Float), ("medium", mi.UInt32), ("origin", mi.Point3f), ("seed", mi.UInt32))
+
     def __init__(self, rays: int, capacity: int):
         self.capacity = capacity
-        size = rays * capacity
         # Only the first ``count`` slots of a ray are written and read.
-        self.steps, self.medium, self.seed = (dr.empty(mi.UInt32, size) for _ in range(3))
-        self.h = dr.empty(mi.Float, size)
-        self.origin = dr.empty(mi.Point3f, size)
+        self.kept = {name: dr.empty(kind, rays * capacity) for name, kind in self.KEPT}
         self.count = mi.UInt32(0)
 
     def slots(self, index: mi.UInt32) -> mi.UInt32:
         return dr.arange(mi.UInt32, dr.width(index)) * self.capacity + index
 
+    def keep(self, segment: Segment, index: mi.UInt32, active: mi.Bool) -> None:
+        """``segment`` as each ray's ``index``-th, where ``active`` and there is room."""
+        slot = self.slots(index)
+        for name, _ in self.KEPT:
+            dr.scatter(self.kept[name], getattr(segment, name), slot, active & (index < self.capacity))
+
+    def segment(self, index: mi.UInt32, d: mi.Vector3f, coefficients: tuple) -> Segment:
+        """Each ray's ``index``-th kept segment, along ``d``."""
+        slot = self.slots(index)
+        return Segment(d=d, coefficients=coefficients,
+                       **{name: dr.gather(kind, self.kept[name], slot) for name, kind in self.KEPT})
+
     def arrays(self) -> tuple:
-        return self.steps, self.medium, self.seed, self.h, self.origin, self.count
+        return *self.kept.values(), self.count
 
     def most(self) -> int:
         """The most segments any ray marched (a read back from the device)."""
@@ -125,10 +137,7 @@ class SegmentLog:
 def _log_segment(log: SegmentLog | None, segment: Segment, logged: mi.UInt32, marched: mi.Bool) -> mi.UInt32:
     if log is None:
         return logged
-    slot = log.slots(logged)
-    for target, value in ((log.steps, segment.steps), (log.medium, segment.medium), (log.seed, segment.seed),
-                          (log.h, segment.h), (log.origin, segment.origin)):
-        dr.scatter(target, value, slot, marched & (logged < log.capacity))
+    log.keep(segment, logged, marched)
     return logged + dr.select(marched, 1, 0)
 
 
@@ -145,11 +154,7 @@ def walk_logged(ray: mi.Ray3f, setup: SceneSetup, log: SegmentLog, progress: obj
     coefficients = setup.projection_coefficients(d)
     index = mi.UInt32(0)
     while dr.hint(index < log.count, exclude=[coefficients, d, log, segment_step, setup]):
-        slot = log.slots(index)
-        segment = Segment(dr.gather(mi.UInt32, log.steps, slot), dr.gather(mi.Float, log.h, slot),
-                          dr.gather(mi.UInt32, log.medium, slot), dr.gather(mi.Point3f, log.origin, slot), d,
-                          coefficients, dr.gather(mi.UInt32, log.seed, slot))
-        progress = segment_step(progress, segment, setup)
+        progress = segment_step(progress, log.segment(index, d, coefficients), setup)
         index += 1
     return progress
 
