@@ -1,0 +1,117 @@
+"""Elastic completion: how close a reconstruction of the disk comes to the elastic fields the part could hold.
+
+A P2 tetrahedral basis of the disk (``CylinderGeometry``), loaded by self-equilibrated forces at its boundary dofs:
+each load gives a displacement (one sparse LU of the stiffness), and the deviator of its stress at the quadrature
+points. LSQR fits those loads to the true deviator (the basis' floor: how close an elastic field of this mesh comes
+to the truth) and to the reconstruction's; errors are dx-weighted at the same points, off-diagonals counted twice.
+If the fit of the reconstruction came near the floor, projecting onto elastic fields would mend the wrong branch.
+
+    .venv/bin/python experiments/elastic_completion.py RESULT --element-size 1.5 --poisson 0.35 --iterations 400
+
+RESULT is a ``mi-nest reconstruct`` output of a simulated disk dataset. Prints the numbers and the CPU.
+"""
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+import common
+
+import mi_nest  # noqa: F401  (sets the variant)
+from mi_nest.fem.meshing import CylinderGeometry
+from mi_nest.fem.solve import Material, scalar_basis, shape_gradients, stiffness
+from mi_nest.fem.loads import rigid_body_modes
+from mi_nest.fields.base import sample
+from mi_nest.physics.tensors import deviatoric_part
+from mi_nest.reconstruct import Reconstruction
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from reconstruction import cpu_name  # noqa: E402
+
+W6 = np.array([1, 1, 1, 2, 2, 2.0])
+
+
+def deviator_operator(basis):
+    """Sparse (6 M, 3 N): 2 mu dev eps (mu = 1) at the M = e*q quadrature points, rows component-major."""
+    G = shape_gradients(basis)                      # (e, q, a, 3)
+    e, q, a, _ = G.shape
+    M = e * q
+    dofs = np.repeat(basis.element_dofs.T[:, None, :], q, axis=1).reshape(M, a)   # (M, a)
+    G = G.reshape(M, a, 3)
+    rows, cols, vals = [], [], []
+
+    def add(comp, c, d, w):
+        rows.append(np.repeat(comp * M + np.arange(M), a))
+        cols.append((3 * dofs + c).ravel())
+        vals.append((w * G[:, :, d]).ravel())
+    for i in range(3):                              # dev_ii = 2 (e_ii - tr/3)
+        for k in range(3):
+            add(i, k, k, 2 * ((1.0 if k == i else 0.0) - 1 / 3))
+    for comp, (i, j) in zip((3, 4, 5), ((1, 2), (2, 0), (0, 1))):   # 3D-TSV order yz zx xy
+        add(comp, i, j, 1.0)
+        add(comp, j, i, 1.0)
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(6 * M, 3 * basis.N))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("result", type=Path, help="a mi-nest reconstruct output directory of a simulated disk")
+    parser.add_argument("--element-size", type=float, default=1.5, help="tetrahedron size in mm")
+    parser.add_argument("--poisson", type=float, default=0.35, help="Poisson's ratio of the basis")
+    parser.add_argument("--iterations", type=int, default=400, help="LSQR iterations per fit")
+    args = parser.parse_args()
+    print(f"CPU: {cpu_name()}")
+    result = Reconstruction.load(args.result)
+    h, nu, iters = args.element_size, args.poisson, args.iterations
+    _, scene, truth = common.simulated_from(result)
+    t = time.perf_counter()
+    mesh = CylinderGeometry(radius=20.0, height=6.0, element_size=h).mesh()
+    basis = scalar_basis(mesh, 2)
+    K = stiffness(basis, Material(2 * (1 + nu), nu)).tocsc()
+    points = basis.mapping.F(basis.X).reshape(3, -1).T          # (M, 3), element-major then q
+    dx = basis.dx.reshape(-1)
+    S = deviator_operator(basis)
+    bdofs = basis.get_dofs().all()
+    bvec = (3 * bdofs[:, None] + np.arange(3)).ravel()
+    R = rigid_body_modes(basis)[bvec]
+    Rq, _ = np.linalg.qr(R)
+    lu = spla.splu((K + 1e-8 * K.diagonal().mean() * sp.identity(K.shape[0])).tocsc(), permc_spec="MMD_AT_PLUS_A")
+    print(f"h {h}: tets {mesh.nelements}, P2 nodes {basis.N}, boundary {len(bdofs)}, points {len(points)}, "
+          f"setup {time.perf_counter() - t:.1f} s", flush=True)
+    t6 = deviatoric_part(sample(truth, points))
+    r6 = deviatoric_part(sample(result.field, points))
+    w = np.sqrt(dx)[None] * np.sqrt(W6)[:, None]                 # (6, M)
+    norm = np.sqrt((w ** 2 * (t6.T ** 2)).sum())
+
+    def err(d6):
+        return np.sqrt((w ** 2 * (d6.T - t6.T) ** 2).sum()) / norm
+
+    def field_of(fb):
+        fb = fb - Rq @ (Rq.T @ fb)
+        f = np.zeros(K.shape[0])
+        f[bvec] = fb
+        return lu.solve(f)
+
+    def adjoint(g):
+        fb = lu.solve(g)[bvec]
+        return fb - Rq @ (Rq.T @ fb)
+    wf = w.ravel()
+    A = spla.LinearOperator((S.shape[0], len(bvec)), matvec=lambda fb: wf * (S @ field_of(fb)),
+                            rmatvec=lambda r: adjoint(S.T @ (wf * r)))
+    print(f"result's own error at these points {err(r6):.4f}", flush=True)
+    for name, target in (("truth", t6), ("result", r6)):
+        t = time.perf_counter()
+        sol = spla.lsqr(A, wf * target.T.ravel(), iter_lim=iters, atol=1e-12, btol=1e-12)
+        d = (S @ field_of(sol[0])).reshape(6, -1).T
+        print(f"{name}'s elastic fit: error against the truth {err(d):.4f}, misfit to its target "
+              f"{np.sqrt((w ** 2 * (d.T - target.T) ** 2).sum()) / norm:.4f} ({sol[2]} it, "
+              f"{time.perf_counter() - t:.0f} s)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
