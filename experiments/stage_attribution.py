@@ -39,13 +39,19 @@ TRACK_EVERY = 200
 
 def planted_run(truth, fit_points, nodes: int) -> type[loop.Run]:
     """A :class:`~mi_nest.reconstruct.loop.Run` whose stage of ``nodes`` nodes begins at the truth's best grid of
-    that size (``truth`` fitted at ``fit_points``); what it planted, and when, goes into ``planted``."""
+    that size (``truth`` fitted at ``fit_points``); what it planted, and when, goes into ``planted``, its ladder into
+    ``ladder``. A ``nodes`` (not 0) that is no stage of the ladder is refused before the run starts."""
 
     class PlantedRun(loop.Run):
-        planted = {}
+        planted, ladder = {}, []
 
         def __init__(self, *arguments, **options):
             super().__init__(*arguments, **options)
+            PlantedRun.ladder[:] = self.stages
+            resolutions = [r for _, r in self.stages]
+            if nodes and nodes not in resolutions:
+                raise SystemExit(f"no stage of {nodes} nodes in this run's ladder {resolutions}: give one of them, "
+                                 "or 0")
             self._plant_if_due()
 
         def _refine_if_due(self) -> None:
@@ -64,10 +70,11 @@ def planted_run(truth, fit_points, nodes: int) -> type[loop.Run]:
 
 
 def stage_ends(history: list[dict], stages: list[tuple[float, int]], seconds: float) -> dict:
-    """The tracked error at the end of each stage (the last record before the next begins) and when each began."""
+    """The tracked error at the end of each stage of ``stages`` (the last record before the next begins) in a run
+    of ``seconds``."""
     tracked = [h for h in history if "deviatoric_error" in h]
     ends = {}
-    for (start, resolution), following in zip(stages, [s for s, _ in stages[1:]] + [1.0]):
+    for (_, resolution), following in zip(stages, [s for s, _ in stages[1:]] + [1.0]):
         before = [h for h in tracked if h["seconds"] <= following * seconds]
         if before:
             ends[f"error_end_{resolution}"] = round(before[-1]["deviatoric_error"], 4)
@@ -95,27 +102,17 @@ def main():
     scene, truth = recorded_truth(dataset)
     fit_points = metrics.evaluation_points(scene, specimen_shapes(scene), 3 * metrics.EVALUATION_POINTS)
     run_class = planted_run(truth, fit_points, args.nodes)
-    stages = {}
-
-    class Recorded(run_class):
-        def __init__(self, *arguments, **options):
-            super().__init__(*arguments, **options)
-            stages["ladder"] = self.stages
-
     print(f"CPU: {cpu_name()}", flush=True)
-    optimization.Run = Recorded
+    optimization.Run = run_class
     output = args.output / f"{case.name}_planted{args.nodes}"
     result = mi_nest.optimize(scene, dataset, output=output, resume=False, progress=False,
                               time_limit=60.0 * args.minutes, iterations=10 ** 9, track_error_every=TRACK_EVERY)
-    if args.nodes and not run_class.planted:
-        raise SystemExit(f"no stage of {args.nodes} nodes in this run's ladder "
-                         f"{[r for _, r in stages['ladder']]}: give one of them, or 0")
     tracked = [h for h in result.history if "deviatoric_error" in h]
     at_plant = [h for h in tracked if h["seconds"] >= run_class.planted.get("seconds", 0.0)]
     row = {"case": case.name, "planted_nodes": args.nodes, "planted_grid": run_class.planted.get("shape", ""),
            "planted_at_s": run_class.planted.get("seconds", ""),
            "error_at_plant": round(at_plant[0]["deviatoric_error"], 4) if args.nodes and at_plant else "",
-           **stage_ends(result.history, stages["ladder"], 60.0 * args.minutes),
+           **stage_ends(result.history, run_class.ladder, 60.0 * args.minutes),
            "deviatoric_error": round(result.metrics["deviatoric_error"], 4),
            "test_psnr": round(result.metrics["test_psnr"], 2), "iterations": len(result.history),
            "minutes": args.minutes, "cpu": cpu_name()}
