@@ -81,6 +81,18 @@ def stage_ends(history: list[dict], stages: list[tuple[float, int]], seconds: fl
     return ends
 
 
+def suite_dataset(case):
+    """The accuracy suite's dataset of ``case`` (simulated first if missing), its scene and its true field; a case
+    that runs with options of its own is refused, as these runs are the defaults' with one change."""
+    if case.flags:
+        raise SystemExit(f"{case.name} runs with {' '.join(case.flags)}: give a case of the defaults alone")
+    data = dataset_directory(case, SUITE, case.rotations, case.res)
+    simulate(case, data, case.rotations, case.res)
+    dataset = Dataset(data)
+    scene, truth = recorded_truth(dataset)
+    return dataset, scene, truth
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     by_name = {case.name: case for case in CASES}
@@ -94,12 +106,7 @@ def main():
     if not args.minutes > 0:
         raise SystemExit(f"--minutes must be positive, got {args.minutes:g}")
     case = by_name[args.case]
-    if case.flags:
-        raise SystemExit(f"{case.name} runs with {' '.join(case.flags)}: give a case of the defaults alone")
-    data = dataset_directory(case, SUITE, case.rotations, case.res)
-    simulate(case, data, case.rotations, case.res)
-    dataset = Dataset(data)
-    scene, truth = recorded_truth(dataset)
+    dataset, scene, truth = suite_dataset(case)
     fit_points = metrics.evaluation_points(scene, specimen_shapes(scene), 3 * metrics.EVALUATION_POINTS)
     run_class = planted_run(truth, fit_points, args.nodes)
     print(f"CPU: {cpu_name()}", flush=True)
